@@ -1,0 +1,1 @@
+"""Sensor-node simulator: vehicle-model truth, CAN nodes with clocks, scenarios, playback."""

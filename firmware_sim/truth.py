@@ -1,0 +1,206 @@
+"""Ground truth: integrate the vehicle model, linear or with saturating dampers.
+
+The linear truth is the exact discrete model (Phi = expm(A T), Van Loan Qd), so data
+generated at the estimator's rate match the paper's Sec. 4.2 set-up. Time-varying
+theta(t) and v(t) are piecewise constant per sample; the discretisation is recomputed
+(and cached) whenever they change.
+
+Optional non-linear dampers (paper Figs. 6-7): the damper force-velocity curves are
+bilinear, steep up to a knee velocity and then "blow-off" with a smaller slope. The
+deviation from the linear damper enters as an input held over a sub-step of T/10.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import scipy.linalg
+
+from gateway.errors import InputError
+from gateway.model import (
+    AR_PAPER_DEFAULT, IDX, NX, SENSOR_NOISE_VAR, SENSORS_5, VehicleParams, discretize,
+    input_matrix, output_matrix, system_matrix, track_intensity,
+)
+
+
+@dataclass(frozen=True)
+class DamperCurve:
+    """Bilinear force-velocity curve relative to the linear coefficient C.
+
+    ``F(u) = C u`` for ``|u| <= knee``, then slope ``blowoff_ratio * C``.
+    """
+
+    knee_mps: float
+    blowoff_ratio: float
+
+    def inverse_deviation(self, force_n: float, c_ns_per_m: float) -> float:
+        """Damper velocity for a force, minus the linear velocity F/C (m/s)."""
+        f_knee = c_ns_per_m * self.knee_mps
+        if abs(force_n) <= f_knee:
+            return 0.0
+        u = np.sign(force_n) * (self.knee_mps + (abs(force_n) - f_knee)
+                                / (self.blowoff_ratio * c_ns_per_m))
+        return float(u - force_n / c_ns_per_m)
+
+    def force_deviation(self, u_mps: float, c_ns_per_m: float) -> float:
+        """Damper force at velocity u, minus the linear force C u (N)."""
+        if abs(u_mps) <= self.knee_mps:
+            return 0.0
+        f = np.sign(u_mps) * c_ns_per_m * (self.knee_mps
+                                           + self.blowoff_ratio * (abs(u_mps) - self.knee_mps))
+        return float(f - c_ns_per_m * u_mps)
+
+
+LATERAL_DAMPER_CURVE = DamperCurve(knee_mps=0.1, blowoff_ratio=0.25)
+"""Secondary lateral damper: 40 kNs/m to 0.1 m/s, then about 8 kN at 0.5 m/s (Fig. 6)."""
+ANTIYAW_DAMPER_CURVE = DamperCurve(knee_mps=0.0035, blowoff_ratio=0.025)
+"""Anti-yaw damper: 2057 kNs/m each to 3.5 mm/s, then about 8 kN at 20 mm/s (Fig. 7)."""
+
+
+@dataclass(frozen=True)
+class NonlinearDampers:
+    """Saturating damper curves for the truth; ``substeps`` per sample."""
+
+    lateral: DamperCurve = LATERAL_DAMPER_CURVE
+    antiyaw: DamperCurve = ANTIYAW_DAMPER_CURVE
+    substeps: int = 10
+
+
+@dataclass(frozen=True)
+class TruthRun:
+    """A simulated run at ``fs_hz``. Shapes: time first.
+
+    t_s (T,); outputs (T, 5) noise-free, in SENSORS_5 order, SI units;
+    states (T, 17); theta (T, 3); speed_mps (T,).
+    """
+
+    t_s: np.ndarray
+    outputs: np.ndarray
+    states: np.ndarray
+    theta: np.ndarray
+    speed_mps: np.ndarray
+    fs_hz: float
+
+
+@numba.njit(cache=True)
+def _propagate(x0: np.ndarray, phi: np.ndarray, noise: np.ndarray, out: np.ndarray) -> None:
+    """out[k] = x_k with x_{k+1} = phi x_k + noise[k]; out has the shape of noise."""
+    n = x0.shape[0]
+    x = x0.copy()
+    for k in range(noise.shape[0]):
+        for i in range(n):
+            out[k, i] = x[i]
+        y = np.zeros(n)
+        for i in range(n):
+            s = noise[k, i]
+            for j in range(n):
+                s += phi[i, j] * x[j]
+            y[i] = s
+        x = y
+
+
+def _noise_factor(qd: np.ndarray) -> np.ndarray:
+    """L with L L' = qd for a PSD (possibly singular) qd, shape (17, 17)."""
+    w, V = np.linalg.eigh(qd)
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def _segments(theta_t: np.ndarray, speed_t: np.ndarray) -> list[tuple[int, int]]:
+    """Index ranges [start, stop) over which theta and speed are constant."""
+    key = np.column_stack([theta_t, speed_t])
+    change = np.any(np.diff(key, axis=0) != 0, axis=1)
+    edges = np.concatenate([[0], np.nonzero(change)[0] + 1, [len(speed_t)]])
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def _validate(theta_t: np.ndarray, speed_t: np.ndarray, fs_hz: float) -> None:
+    if theta_t.ndim != 2 or theta_t.shape[1] != 3:
+        raise InputError(f"expected theta_t of shape (T, 3), got {theta_t.shape}")
+    if speed_t.shape != (theta_t.shape[0],):
+        raise InputError(f"expected speed of shape ({theta_t.shape[0]},), got {speed_t.shape}")
+    if not fs_hz > 0:
+        raise InputError(f"expected a positive sample rate, got {fs_hz} Hz")
+    if np.any(speed_t <= 0) or np.any(theta_t <= 0):
+        raise InputError("expected positive speeds and parameters throughout the run")
+
+
+def simulate(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
+             rng: np.random.Generator, *, params: VehicleParams | None = None,
+             ar_paper: float = AR_PAPER_DEFAULT, burn_in_s: float = 10.0,
+             dampers: NonlinearDampers | None = None) -> TruthRun:
+    """Simulate the truth at ``fs_hz`` for theta_t (T, 3) and speed (T,).
+
+    The run starts from rest and first runs ``burn_in_s`` at the initial conditions so
+    that it starts in (near) stationary vibration.
+    """
+    p = params or VehicleParams()
+    theta_t = np.asarray(theta_t, dtype=float)
+    speed_t = np.asarray(speed_mps_t, dtype=float)
+    _validate(theta_t, speed_t, fs_hz)
+    n_burn = int(round(burn_in_s * fs_hz))
+    theta_all = np.concatenate([np.repeat(theta_t[:1], n_burn, axis=0), theta_t])
+    speed_all = np.concatenate([np.repeat(speed_t[:1], n_burn), speed_t])
+    states = np.empty((len(speed_all), NX))
+    x = np.zeros(NX)
+    G = input_matrix()
+    for a, b in _segments(theta_all, speed_all):
+        A = system_matrix(p, theta_all[a], float(speed_all[a]))
+        q = track_intensity(ar_paper, float(speed_all[a]))
+        if dampers is None:
+            d = discretize(A, G, q, 1.0 / fs_hz)
+            noise = rng.standard_normal((b - a, NX)) @ _noise_factor(d.qd).T
+            _propagate(x, d.phi, noise, states[a:b])
+            x = d.phi @ states[b - 1] + noise[-1]
+        else:
+            x = _run_nonlinear(x, A, q, theta_all[a], p, fs_hz, dampers, rng, states[a:b])
+    outputs = np.empty((len(speed_all), 5))
+    for a, b in _segments(np.zeros((len(speed_all), 3)) + 1, speed_all):
+        H = output_matrix(system_matrix(p, theta_all[a], float(speed_all[a])), SENSORS_5)
+        outputs[a:b] = states[a:b] @ H.T
+    sl = slice(n_burn, None)
+    t_s = np.arange(len(speed_t)) / fs_hz
+    return TruthRun(t_s=t_s, outputs=outputs[sl], states=states[sl], theta=theta_t,
+                    speed_mps=speed_t, fs_hz=float(fs_hz))
+
+
+def _run_nonlinear(x: np.ndarray, A: np.ndarray, q: float, theta: np.ndarray,
+                   p: VehicleParams, fs_hz: float, dampers: NonlinearDampers,
+                   rng: np.random.Generator, out: np.ndarray) -> np.ndarray:
+    """Sub-stepped integration with the damper deviations as held inputs; fills out."""
+    h = 1.0 / (fs_hz * dampers.substeps)
+    d = discretize(A, input_matrix(), q, h)
+    B = np.zeros((NX, 2))
+    B[IDX["y_sr"], 0] = 1.0            # deviation of the series-node velocity
+    B[IDX["dpsi_b"], 1] = 1.0 / p.ib_kgm2   # deviation of the anti-yaw moment
+    aug = np.zeros((NX + 2, NX + 2))
+    aug[:NX, :NX] = A
+    aug[:NX, NX:] = B
+    gamma_u = scipy.linalg.expm(aug * h)[:NX, NX:]
+    L = _noise_factor(d.qd)
+    csy, csay = float(theta[0]), float(theta[1])
+    i_b, i_c, i_sr, i_dpsi = IDX["y_b"], IDX["psi_b"], IDX["y_sr"], IDX["dpsi_b"]
+    half_csay = 0.5 * csay
+    for k in range(out.shape[0]):
+        out[k] = x
+        for _ in range(dampers.substeps):
+            force = p.ksry_n_per_m * (x[i_b] + p.c_m * x[i_c] - x[i_sr])
+            du = dampers.lateral.inverse_deviation(force, csy)
+            u_ay = p.lbw_m * x[i_dpsi]
+            dm = -2 * p.lbw_m * dampers.antiyaw.force_deviation(u_ay, half_csay)
+            x = d.phi @ x + gamma_u @ np.array([du, dm]) + L @ rng.standard_normal(NX)
+    return x
+
+
+def add_sensor_noise(outputs: np.ndarray, sensors: tuple[str, ...], rng: np.random.Generator,
+                     noise_var: dict[str, float] | None = None) -> np.ndarray:
+    """Measured = true + white noise; outputs (T, ny) in the order of ``sensors``."""
+    var = noise_var or SENSOR_NOISE_VAR
+    std = np.sqrt(np.array([var[s] for s in sensors]))
+    return outputs + rng.standard_normal(outputs.shape) * std
+
+
+def select(outputs: np.ndarray, sensors: tuple[str, ...]) -> np.ndarray:
+    """Columns of a (T, 5) SENSORS_5 array for a sensor subset, shape (T, len(sensors))."""
+    return outputs[:, [SENSORS_5.index(s) for s in sensors]]
