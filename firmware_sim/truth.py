@@ -20,8 +20,17 @@ import scipy.linalg
 
 from gateway.errors import InputError
 from gateway.model import (
-    AR_PAPER_DEFAULT, IDX, NX, SENSOR_NOISE_VAR, SENSORS_5, VehicleParams, discretize,
-    input_matrix, output_matrix, system_matrix, track_intensity,
+    AR_PAPER_DEFAULT,
+    IDX,
+    NX,
+    SENSOR_NOISE_VAR,
+    SENSORS_5,
+    VehicleParams,
+    discretize,
+    input_matrix,
+    output_matrix,
+    system_matrix,
+    track_intensity,
 )
 
 
@@ -129,21 +138,24 @@ def _validate(theta_t: np.ndarray, speed_t: np.ndarray, fs_hz: float) -> None:
 def simulate(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
              rng: np.random.Generator, *, params: VehicleParams | None = None,
              ar_paper: float = AR_PAPER_DEFAULT, burn_in_s: float = 10.0,
-             dampers: NonlinearDampers | None = None) -> TruthRun:
+             dampers: NonlinearDampers | None = None,
+             x0: np.ndarray | None = None) -> TruthRun:
     """Simulate the truth at ``fs_hz`` for theta_t (T, 3) and speed (T,).
 
-    The run starts from rest and first runs ``burn_in_s`` at the initial conditions so
-    that it starts in (near) stationary vibration.
+    Without ``x0`` the run starts from rest and first runs ``burn_in_s`` at the initial
+    conditions so that it starts in (near) stationary vibration. With ``x0`` (17,) the
+    first state is x0 and there is no burn-in: chain blocks by passing the last state
+    of one block as x0 of the next (that sample then appears in both).
     """
     p = params or VehicleParams()
     theta_t = np.asarray(theta_t, dtype=float)
     speed_t = np.asarray(speed_mps_t, dtype=float)
     _validate(theta_t, speed_t, fs_hz)
-    n_burn = int(round(burn_in_s * fs_hz))
+    n_burn = 0 if x0 is not None else int(round(burn_in_s * fs_hz))
     theta_all = np.concatenate([np.repeat(theta_t[:1], n_burn, axis=0), theta_t])
     speed_all = np.concatenate([np.repeat(speed_t[:1], n_burn), speed_t])
     states = np.empty((len(speed_all), NX))
-    x = np.zeros(NX)
+    x = np.zeros(NX) if x0 is None else np.asarray(x0, dtype=float).copy()
     G = input_matrix()
     for a, b in _segments(theta_all, speed_all):
         A = system_matrix(p, theta_all[a], float(speed_all[a]))

@@ -91,7 +91,7 @@ def read_csv(path: str | Path) -> Recording:
     """Read an interchange CSV; raises CsvFormatError naming line and column."""
     p = str(path)
     try:
-        handle = open(p, newline="", encoding="utf-8")
+        handle = open(p, newline="", encoding="utf-8")  # noqa: SIM115 (closed by `with` below)
     except OSError as err:
         raise CsvFormatError(p, 0, None, f"expected a readable file, got {err.strerror}") from err
     with handle:

@@ -1,0 +1,165 @@
+"""The ``python -m firmware_sim`` command line: run scenarios, play CSVs, stream to a bus.
+
+Deliberate failures (GatewayError) print one line and exit non-zero; never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from collections.abc import Sequence
+
+import can
+
+from firmware_sim.output import send_live, write_log
+from firmware_sim.playback import playback_frames
+from firmware_sim.scenarios import SCENARIOS, get_scenario
+from firmware_sim.simulation import SimConfig, Simulation
+from gateway.canbus import DEFAULT_DEMO_BUS, open_bus, parse_bus_spec
+from gateway.errors import FrameError, GatewayError, InputError
+from gateway.interchange import read_csv
+
+
+def _add_target(p: argparse.ArgumentParser) -> None:
+    target = p.add_mutually_exclusive_group(required=True)
+    target.add_argument("--out", metavar="RUN.log",
+                        help="write a CAN log, format by suffix (.log candump, .asc, .blf)")
+    target.add_argument("--bus", metavar="IFACE:CHANNEL",
+                        help="send live, e.g. virtual:railgw or socketcan:vcan0")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="live playback speed, x real time (default 1)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m firmware_sim",
+                                     description="Simulated bogie/body/wheelset/vehicle nodes.")
+    parser.add_argument("-v", "--verbose", action="store_true")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    p = sub.add_parser("list", help="list the scenarios")
+    p.set_defaults(func=cmd_list)
+    p = sub.add_parser("run", help="simulate a scenario to a log or a bus")
+    p.add_argument("--scenario", default="nominal", help="scenario name (see 'list')")
+    p.add_argument("--duration", type=float, help="seconds (default: the scenario's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--nonlinear-dampers", action="store_true",
+                   help="saturating damper curves in the truth (paper Figs. 6-7)")
+    p.add_argument("--track-roughness", type=float, default=None,
+                   help="Ar as printed in the paper (default 2 x 0.33e-3)")
+    _add_target(p)
+    p.set_defaults(func=cmd_run)
+    p = sub.add_parser("play-csv", help="turn an interchange CSV into node frames")
+    p.add_argument("csv", help="interchange CSV (time_s, bogie_lat_acc_mps2, ...)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bus latency jitter")
+    _add_target(p)
+    p.set_defaults(func=cmd_play_csv)
+    p = sub.add_parser("stream", help="simulate on an embedded bus and print decoded values")
+    p.add_argument("--scenario", default="nominal")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds (default 10)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--bus", default=DEFAULT_DEMO_BUS, help=f"default {DEFAULT_DEMO_BUS}")
+    p.set_defaults(func=cmd_stream)
+    return parser
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    for s in SCENARIOS.values():
+        print(f"{s.name:18} {s.default_duration_s:6.0f} s  {s.description}")
+    return 0
+
+
+def _simulation(args: argparse.Namespace) -> Simulation:
+    scenario = get_scenario(args.scenario)
+    duration = args.duration if args.duration is not None else scenario.default_duration_s
+    if not duration > 0:
+        raise InputError(f"expected a positive --duration in seconds, got {duration}")
+    kwargs = {}
+    if getattr(args, "track_roughness", None) is not None:
+        kwargs["ar_paper"] = args.track_roughness
+    cfg = SimConfig(duration_s=duration, seed=args.seed,
+                    nonlinear_dampers=getattr(args, "nonlinear_dampers", False), **kwargs)
+    return Simulation(scenario, cfg)
+
+
+def _emit(messages: object, args: argparse.Namespace) -> int:
+    if args.out:
+        n = write_log(messages, args.out)  # type: ignore[arg-type]
+        print(f"wrote {n} frames to {args.out}")
+        return 0
+    spec = parse_bus_spec(args.bus)
+    with open_bus(spec) as bus:
+        n = send_live(messages, bus, speed=args.speed)  # type: ignore[arg-type]
+    print(f"sent {n} frames on {spec}")
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    return _emit(_simulation(args).messages(), args)
+
+
+def cmd_play_csv(args: argparse.Namespace) -> int:
+    return _emit(playback_frames(read_csv(args.csv), seed=args.seed), args)
+
+
+def cmd_stream(args: argparse.Namespace) -> int:
+    """Sender thread on the bus; this thread receives, decodes and prints twice a second."""
+    from gateway.codec import default_codec
+
+    codec = default_codec()
+    sim = _simulation(args)
+    spec = parse_bus_spec(args.bus)
+    done = threading.Event()
+    with open_bus(spec) as rx, open_bus(spec) as tx:
+        def send() -> None:
+            send_live(sim.messages(), tx)
+            done.set()
+
+        sender = threading.Thread(target=send, daemon=True, name="sim-sender")
+        sender.start()
+        print(f"simulating '{sim.scenario.name}' for {sim.config.duration_s:g} s on {spec}; "
+              "decoded sensor values:")
+        print(f"{'t [s]':>6} {'bogie acc':>10} {'yaw rate':>10} {'body acc':>10} "
+              f"{'speed':>7} {'frames':>7} {'rejected':>8}")
+        last: dict[str, float] = {}
+        n_ok = n_bad = 0
+        t_start = time.monotonic()
+        next_print = t_start + 0.5
+        while True:
+            msg = rx.recv(timeout=0.1)
+            if msg is None and done.is_set():
+                break
+            if msg is not None:
+                try:
+                    last.update(codec.decode_message(msg).values)
+                    n_ok += 1
+                except FrameError:
+                    n_bad += 1
+            now = time.monotonic()
+            if now >= next_print:
+                next_print += 0.5
+                print(f"{now - t_start:6.1f} {last.get('BGN_Acc', float('nan')):10.4f} "
+                      f"{last.get('BGN_YawRate', float('nan')):10.5f} "
+                      f"{last.get('BDN_Acc', float('nan')):10.4f} "
+                      f"{last.get('VEH_Speed', float('nan')):7.2f} {n_ok:7d} {n_bad:8d}",
+                      flush=True)
+        sender.join(timeout=1.0)
+    print(f"done: {n_ok} frames decoded, {n_bad} rejected")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args))
+    except GatewayError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return err.exit_code
+    except can.CanError as err:
+        print(f"error: CAN bus: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130

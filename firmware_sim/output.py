@@ -1,0 +1,65 @@
+"""Where simulated frames go: a CAN log file (faster than real time) or a live bus.
+
+Log formats are python-can's, chosen by the file suffix (candump ``.log``, ``.asc``,
+``.blf``, ...). Live sending paces frames by their timestamps on a monotonic clock.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import can
+
+from gateway.errors import InputError
+
+LOG_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc", ".mf4")
+
+
+def write_log(messages: Iterable[can.Message], path: str | Path) -> int:
+    """Write all messages to a log chosen by suffix; returns the frame count."""
+    p = Path(path)
+    if p.suffix.lower() not in LOG_SUFFIXES:
+        raise InputError(f"expected a log file ending in one of {list(LOG_SUFFIXES)}, "
+                         f"got {str(p)!r}")
+    try:
+        writer = can.Logger(str(p))
+    except (ValueError, ImportError, OSError) as err:
+        raise InputError(f"expected a writable CAN log {str(p)!r}, got {err}") from err
+    n = 0
+    try:
+        for msg in messages:
+            writer.on_message_received(msg)
+            n += 1
+    finally:
+        writer.stop()
+    return n
+
+
+def send_live(messages: Iterable[can.Message], bus: can.BusABC, *, speed: float = 1.0,
+              clock: Callable[[], float] = time.monotonic,
+              sleep: Callable[[float], None] = time.sleep,
+              stop: Callable[[], bool] = lambda: False) -> int:
+    """Send messages paced by their timestamps (``speed`` x real time); returns count.
+
+    Frames are sent when their time comes; a late sender catches up without sleeping.
+    """
+    if speed <= 0:
+        raise InputError(f"expected a positive playback speed, got {speed}")
+    n = 0
+    start_wall = clock()
+    start_data: float | None = None
+    for msg in messages:
+        if stop():
+            break
+        if start_data is None:
+            start_data = msg.timestamp
+        due = start_wall + (msg.timestamp - start_data) / speed
+        wait = due - clock()
+        if wait > 0.002:
+            sleep(wait)
+        bus.send(can.Message(arbitration_id=msg.arbitration_id, data=msg.data,
+                             is_extended_id=msg.is_extended_id, dlc=msg.dlc))
+        n += 1
+    return n

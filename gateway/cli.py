@@ -1,0 +1,58 @@
+"""The ``python -m gateway`` command line: dispatch to one module per subcommand.
+
+Each module in :data:`COMMANDS` has ``register(subparsers)``, which adds its parser
+and sets ``func`` to a ``run(args) -> int``. Deliberate failures (GatewayError) become
+one line on stderr and the error's exit code; never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from gateway import __version__
+from gateway.errors import GatewayError
+
+COMMANDS: tuple[str, ...] = (
+    "gateway.commands.model",
+    "gateway.commands.estimate",
+    "gateway.commands.bench",
+    "gateway.commands.identify",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with every available subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="python -m gateway",
+        description="Railway suspension condition-monitoring gateway.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as err:
+            if err.name != name:
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args))
+    except GatewayError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return err.exit_code
+    except KeyboardInterrupt:
+        return 130

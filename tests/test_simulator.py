@@ -1,0 +1,203 @@
+"""The sensor-node simulator: frames decode back to what went in; faults show as designed."""
+
+from __future__ import annotations
+
+import can
+import cantools
+import numpy as np
+import pytest
+
+from dbc import DBC_PATH
+from firmware_sim.output import write_log
+from firmware_sim.scenarios import SCENARIOS, get_scenario
+from firmware_sim.simulation import SimConfig, Simulation
+from gateway.codec import default_codec
+from gateway.errors import FrameError, InputError
+from gateway.interchange import write_csv
+
+DB = cantools.database.load_file(str(DBC_PATH), strict=True)
+SIGNAL_OF = {"acc_w1": ("WSN_Lat", "WSN_Acc1"), "acc_w2": ("WSN_Lat", "WSN_Acc2"),
+             "acc_b": ("BGN_Lat", "BGN_Acc"), "gyro_b": ("BGN_Lat", "BGN_YawRate"),
+             "acc_bd": ("BDN_Lat", "BDN_Acc"), "speed": ("VEH_Speed", "VEH_Speed")}
+NODE_OF = {"acc_w1": "WSN", "acc_w2": "WSN", "acc_b": "BGN", "gyro_b": "BGN", "acc_bd": "BDN",
+           "speed": "VEH"}
+
+
+def _run(name: str, duration_s: float, seed: int = 3, **kw) -> tuple[Simulation, list[can.Message]]:
+    sim = Simulation(get_scenario(name), SimConfig(duration_s=duration_s, seed=seed, **kw),
+                     record=True)
+    return sim, list(sim.messages())
+
+
+def _decoded(messages, message_name: str) -> list[dict]:
+    frame_id = DB.get_message_by_name(message_name).frame_id
+    return [DB.decode_message(m.arbitration_id, bytes(m.data), decode_choices=False)
+            for m in messages if m.arbitration_id == frame_id]
+
+
+def _step(message: str, signal: str) -> float:
+    return float(DB.get_message_by_name(message).get_signal_by_name(signal).scale)
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
+def test_simulated_run_decodes_back_from_a_log(tmp_path, suffix):
+    sim, messages = _run("nominal", 2.0)
+    path = tmp_path / f"run{suffix}"
+    assert write_log(messages, path) == len(messages)
+    read = [m for m in can.LogReader(str(path)) if not m.is_error_frame]
+    assert len(read) == len(messages)
+    assert sim.records is not None
+    for sensor, (message, signal) in SIGNAL_OF.items():
+        got = np.array([d[signal] for d in _decoded(read, message)])
+        sent = sim.records[NODE_OF[sensor]].array(sensor)
+        assert got.shape == sent.shape and len(got) > 100
+        assert np.abs(got - sent).max() <= _step(message, signal), sensor
+    idx = np.array([d["BGN_Lat_SampleIdx"] for d in _decoded(read, "BGN_Lat")])
+    np.testing.assert_array_equal(idx, np.concatenate(sim.records["BGN"].sample_idx))
+
+
+def test_bus_timing_has_jitter_drift_and_all_nodes():
+    sim, messages = _run("nominal", 3.0)
+    t = np.array([m.timestamp for m in messages])
+    assert np.all(np.diff(t) >= 0)
+    ids = {m.arbitration_id for m in messages}
+    assert ids == {0x101, 0x102, 0x103, 0x110}
+    bgn = [m for m in messages if m.arbitration_id == 0x102]
+    tb = np.array([m.timestamp for m in bgn])
+    idx = np.array([_decoded([m], "BGN_Lat")[0]["BGN_Lat_SampleIdx"] for m in bgn])
+    slope, _ = np.polyfit(idx, tb, 1)
+    drift_ppm = (slope / 1e-3 - 1) * 1e6
+    assert abs(drift_ppm - sim.clocks["BGN"].drift_ppm) < 5
+    latency = tb - np.polyval(np.polyfit(idx, tb, 1), idx)
+    assert latency.std() > 20e-6            # jittered, not on a perfect grid
+
+
+def test_same_seed_same_frames_and_other_seed_differs():
+    _, a = _run("nominal", 1.0, seed=7)
+    _, b = _run("nominal", 1.0, seed=7)
+    _, c = _run("nominal", 1.0, seed=8)
+    assert [(m.timestamp, bytes(m.data)) for m in a] == [(m.timestamp, bytes(m.data)) for m in b]
+    assert [bytes(m.data) for m in a] != [bytes(m.data) for m in c]
+
+
+def _window(messages, node_id: int, duration_s: float):
+    """Frames well inside the fault window (40-60 %) and well before it."""
+    ms = [m for m in messages if m.arbitration_id == node_id]
+    inside = [m for m in ms if 0.41 * duration_s <= m.timestamp < 0.59 * duration_s]
+    before = [m for m in ms if m.timestamp < 0.39 * duration_s]
+    return inside, before
+
+
+def test_dropout_stops_the_node_inside_its_window():
+    _, messages = _run("dropout", 10.0)
+    t = np.array([m.timestamp for m in messages if m.arbitration_id == 0x103])
+    assert not np.any((t > 4.001) & (t < 5.999))
+    assert np.any(t < 4.0) and np.any(t > 6.0)
+
+
+def test_bad_crc_is_rejected_only_inside_its_window():
+    _, messages = _run("bad-crc", 10.0)
+    codec = default_codec()
+    inside, outside = _window(messages, 0x102, 10.0)
+    for m in inside:
+        with pytest.raises(FrameError) as info:
+            codec.decode_message(m)
+        assert info.value.reason == "crc"
+    for m in outside:
+        codec.decode_message(m)
+
+
+def test_frozen_counter_and_stuck_values():
+    _, messages = _run("frozen-counter", 10.0)
+    inside, outside = _window(messages, 0x101, 10.0)
+    assert len({m.data[1] & 0xF for m in inside}) == 1
+    assert len({m.data[1] & 0xF for m in outside}) == 15
+    _, messages = _run("stuck", 10.0)
+    inside, outside = _window(messages, 0x102, 10.0)
+    assert len({bytes(m.data[4:8]) for m in inside}) == 1
+    assert len({bytes(m.data[4:8]) for m in outside}) > 100
+
+
+def test_noise_burst_raises_the_noise_inside_its_window():
+    _, messages = _run("noise-burst", 10.0)
+    inside, outside = _window(messages, 0x102, 10.0)
+    yaw_in = np.std([d["BGN_YawRate"] for d in _decoded(inside, "BGN_Lat")])
+    yaw_out = np.std([d["BGN_YawRate"] for d in _decoded(outside, "BGN_Lat")])
+    assert yaw_in > 2.5 * yaw_out
+
+
+def test_out_of_order_frames_only_inside_the_window():
+    _, messages = _run("out-of-order", 10.0)
+    inside, outside = _window(messages, 0x103, 10.0)
+
+    def backwards(ms):
+        idx = np.array([_decoded([m], "BDN_Lat")[0]["BDN_Lat_SampleIdx"] for m in ms])
+        return int(np.sum(np.diff(idx.astype(int)) % 65536 > 60000))
+
+    assert backwards(inside) > 100
+    assert backwards(outside) == 0
+
+
+def test_scenario_parameter_profiles():
+    lf = get_scenario("lateral-failing")
+    th = lf.theta(np.array([0.0, 29.9, 30.0, 59.0]), 60.0)
+    np.testing.assert_allclose(th[:, 0], [40e3, 40e3, 10e3, 10e3])
+    ld = get_scenario("lateral-degrading").theta(np.array([0.0, 60.0, 120.0]), 120.0)
+    assert ld[0, 0] == 40e3 and ld[1, 0] < 40e3 and np.isclose(ld[2, 0], 16e3)
+    cr = get_scenario("conicity-rising").theta(np.array([120.0]), 120.0)
+    assert np.isclose(cr[0, 2], 0.40)
+    v = get_scenario("speed-profile").speed(np.array([0.0, 60.0, 120.0]), 120.0)
+    np.testing.assert_allclose(v, [20.0, 42.5, 30.0])
+    assert {"nominal", "lateral-degrading", "lateral-failing", "antiyaw-failing",
+            "conicity-rising", "speed-profile"} <= set(SCENARIOS)
+
+
+def test_nonlinear_dampers_change_the_response():
+    sim_l, lin = _run("nominal", 3.0, seed=4)
+    sim_n, nonlin = _run("nominal", 3.0, seed=4, nonlinear_dampers=True)
+    assert sim_l.records is not None and sim_n.records is not None
+    yaw_l = sim_l.records["BGN"].array("gyro_b").std()
+    yaw_n = sim_n.records["BGN"].array("gyro_b").std()
+    assert yaw_n > 1.3 * yaw_l      # saturated anti-yaw dampers let the bogie yaw more
+
+
+def test_play_csv_round_trip(tmp_path, cli):
+    rng = np.random.default_rng(0)
+    t = np.arange(2000) * 1e-3 + rng.uniform(-1e-4, 1e-4, 2000)    # uneven times
+    sig = {"acc_b": rng.normal(0, 0.4, 2000), "gyro_b": rng.normal(0, 3e-3, 2000),
+           "acc_bd": rng.normal(0, 0.15, 2000), "speed": np.full(2000, 40.0)}
+    sig["acc_bd"][100] = np.nan
+    write_csv(tmp_path / "in.csv", t, sig)
+    proc = cli("firmware_sim", "play-csv", str(tmp_path / "in.csv"), "--out",
+               str(tmp_path / "run.log"))
+    assert proc.returncode == 0, proc.stderr
+    read = list(can.LogReader(str(tmp_path / "run.log")))
+    codec = default_codec()
+    for sensor in ("acc_b", "gyro_b", "acc_bd"):
+        message, signal = SIGNAL_OF[sensor]
+        frames = [codec.decode_message(m) for m in read
+                  if m.arbitration_id == DB.get_message_by_name(message).frame_id]
+        got = np.array([f.values[signal] for f in frames])
+        assert len(got) == 2000
+        ok = ~np.isnan(sig[sensor])
+        assert np.abs(got[ok] - sig[sensor][ok]).max() <= _step(message, signal)
+        assert np.isnan(got[~ok]).all()
+        idx = np.array([f.sample_idx for f in frames])
+        np.testing.assert_array_equal(idx, np.arange(2000))
+    speeds = [m for m in read if m.arbitration_id == 0x110]
+    assert len(speeds) == len(np.unique(np.rint((t - t[0]) / 0.01)))
+
+
+def test_bad_inputs_give_one_line_errors(tmp_path, cli):
+    proc = cli("firmware_sim", "run", "--scenario", "derailment", "--out", str(tmp_path / "x.log"))
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert proc.stderr.count("\n") == 1 and "expected a scenario from" in proc.stderr
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,bogie_lat_acc_mps2,bogie_yaw_rate_radps,body_lat_acc_mps2\n"
+                   "0,0.1,0.001,0.01\n0.001,0.2,oops,0.02\n")
+    proc = cli("firmware_sim", "play-csv", str(bad), "--out", str(tmp_path / "x.log"))
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert proc.stderr.count("\n") == 1
+    assert "bad.csv:3" in proc.stderr and "bogie_yaw_rate_radps" in proc.stderr
+    with pytest.raises(InputError):
+        get_scenario("nope")
