@@ -10,6 +10,7 @@ Every stage imports these records, never a sibling stage.
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -67,3 +68,66 @@ class Estimator(Protocol):
 
     def step(self, sample: Sample) -> Estimate:
         """Consume one grid sample and return the posterior after it."""
+
+
+class Quality(enum.IntEnum):
+    """Per-sensor quality flag of a grid sample."""
+
+    OK = 0
+    MISSING = 1
+    """No frame covered this grid point (gap, timeout, dropped or rejected frames)."""
+    NOT_AVAILABLE = 2
+    """The node sent its NotAvailable value."""
+    SUSPECT = 3
+    """Delivered, but flagged by validation (e.g. stuck value, counter trouble)."""
+
+
+@dataclass(frozen=True)
+class GridSample:
+    """One point of the resampler's fixed-rate grid, all sensors.
+
+    ``values`` (5,) in SENSORS_5 order (acc_w1, acc_w2, acc_b, gyro_b, acc_bd), SI units,
+    NaN unless ``quality`` is OK or SUSPECT; ``quality`` (5,) of :class:`Quality` ints;
+    ``speed_mps`` NaN when unknown; ``yaw_rate_lp_radps`` the low-passed bogie yaw rate
+    used for curve gating.
+    """
+
+    t_s: float
+    values: np.ndarray
+    quality: np.ndarray
+    speed_mps: float
+    yaw_rate_lp_radps: float = float("nan")
+
+
+class Severity(enum.IntEnum):
+    """Alert severities, in increasing order (values as on the CAN bus)."""
+
+    ADVISORY = 1
+    WARNING = 2
+    ALARM = 3
+
+
+class AlertState(enum.IntEnum):
+    """Alert lifecycle states (values as on the CAN bus)."""
+
+    RAISED = 0
+    CLEARED = 1
+    ACKNOWLEDGED = 2
+
+
+@dataclass(frozen=True)
+class Alert:
+    """An alert event: raised, cleared or acknowledged, for one parameter.
+
+    ``t_s`` is data time; ``value_rel`` the estimate relative to nominal at that time;
+    ``seq`` a sequence number unique over the gateway's life (persisted).
+    """
+
+    seq: int
+    t_s: float
+    parameter: str
+    severity: Severity
+    state: AlertState
+    code: int
+    value_rel: float
+    message: str = ""
