@@ -18,6 +18,8 @@ import numpy as np
 from gateway.e2e import COUNTER_MODULUS, e2e_crc
 
 SAMPLE_INDEX_MODULUS = 1 << 16
+FRAME_TIME_S = 135e-6
+"""Worst-case duration of one 8-byte classic frame at 1 Mbit/s."""
 
 
 @dataclass(frozen=True)
@@ -135,6 +137,7 @@ class NodeState:
 
     counter: int = 0
     next_k: int = 0
+    last_bus_s: float = -1.0
 
 
 def counters_from(state: NodeState, n: int) -> np.ndarray:

@@ -13,6 +13,7 @@ import can
 import numpy as np
 
 from firmware_sim.nodes import (
+    FRAME_TIME_S,
     NODES,
     SAMPLE_INDEX_MODULUS,
     FramePacker,
@@ -140,7 +141,11 @@ class Simulation:
         counters = counters_from(state, len(k))
         keep = np.ones(len(k), dtype=bool)
         bad_crc = np.zeros(len(k), dtype=bool)
-        latency = default_latency(self._rng_bus, len(k))
+        # a node's transmit queue is FIFO: its frames never overtake each other
+        t_bus = np.maximum.accumulate(np.maximum(
+            t_true + default_latency(self._rng_bus, len(k)), state.last_bus_s + FRAME_TIME_S))
+        state.last_bus_s = float(t_bus[-1])
+        latency = t_bus - t_true
         for fault in self.scenario.faults:
             if fault.node == node.node:
                 inside = ((t_true >= fault.start_frac * cfg.duration_s)
