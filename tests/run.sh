@@ -5,6 +5,14 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
+if ! command -v systemd-analyze >/dev/null 2>&1; then
+  echo "== installing Debian's systemd package (for systemd-analyze, used by the unit checks)"
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq systemd >/dev/null
+  else
+    echo "   not root or no apt-get: the systemd unit checks will be skipped"
+  fi
+fi
 echo "== creating .venv and installing the project with its test tools"
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip

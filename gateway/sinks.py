@@ -1,0 +1,121 @@
+"""Output sinks: our CAN frames (estimates, alerts, health, E2E-protected) and the log.
+
+Each sink has ``emit_*`` methods and ``close()``. The CAN sink encodes with the codec,
+keeps one alive counter per message and hands frames to a ``send`` callable (the bus
+source in the service, a list in tests and replay).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import can
+
+from gateway.codec import Codec
+from gateway.e2e import next_counter
+from gateway.model import PARAM_NAMES
+from gateway.records import Alert, AlertState, Estimate, Severity
+
+log = logging.getLogger(__name__)
+
+EST_MESSAGES = {"csy_ns_per_m": "GW_EstCsy", "csay_ns_per_m": "GW_EstCsay",
+                "conicity": "GW_EstConicity"}
+PARAM_CODE = {name: i for i, name in enumerate(PARAM_NAMES)}
+CONVERGED_REL_STD = 0.05
+"""sigma/theta below which an estimate frame says Valid rather than Converging."""
+
+
+@dataclass(frozen=True)
+class Health:
+    """What the 1 Hz health frame reports."""
+
+    gw_state: str            # Starting | Running | Degraded | Fault
+    bus_state: int           # 0 active, 1 passive, 2 bus-off
+    active_alerts: int
+    frames_rx: int
+    frames_rejected: int
+    frames_dropped: int
+    rtf: float              # estimator real-time factor (data s per wall s)
+
+
+def estimate_status(est: Estimate, index: int) -> str:
+    """The estimate frame's status word for parameter ``index``."""
+    if not est.updated:
+        return "PredictOnly"
+    mean, std = est.mean[index], est.std[index]
+    if not (math.isfinite(mean) and math.isfinite(std)) or mean <= 0:
+        return "Init"
+    return "Valid" if std / mean < CONVERGED_REL_STD else "Converging"
+
+
+class CanSink:
+    """Encodes and sends the gateway's frames; counts what it could not send."""
+
+    def __init__(self, codec: Codec, send: Callable[[can.Message], bool],
+                 particles: int) -> None:
+        self._codec = codec
+        self._send = send
+        self._particles = particles
+        self._counters: dict[str, int] = {}
+        self.sent = 0
+        self.failed = 0
+
+    def _out(self, name: str, signals: dict[str, float | str | None]) -> None:
+        counter = self._counters.get(name, 0)
+        self._counters[name] = next_counter(counter)
+        msg = self._codec.encode_message(name, signals, counter, saturate=True)
+        if self._send(msg):
+            self.sent += 1
+        else:
+            self.failed += 1
+
+    def emit_estimate(self, est: Estimate) -> None:
+        """One frame per parameter: mean, std, status and ESS %."""
+        ess_pct = min(100.0, 100.0 * est.ess / self._particles) if self._particles else None
+        for i, name in enumerate(PARAM_NAMES):
+            msg = EST_MESSAGES[name]
+            mean, std = est.mean[i], est.std[i]
+            self._out(msg, {f"{msg}_Status": estimate_status(est, i),
+                            f"{msg}_Mean": mean if math.isfinite(mean) else None,
+                            f"{msg}_Std": std if math.isfinite(std) else None,
+                            f"{msg}_EssPct": ess_pct})
+
+    def emit_alert(self, alert: Alert) -> None:
+        """One GW_Alert frame per alert event."""
+        self._out("GW_Alert", {
+            "GW_Alert_Seq": alert.seq, "GW_Alert_Code": min(alert.code, 254),
+            "GW_Alert_Severity": int(alert.severity),
+            "GW_Alert_Param": PARAM_CODE.get(alert.parameter, 7),
+            "GW_Alert_State": int(alert.state),
+            "GW_Alert_ValueRel": alert.value_rel if math.isfinite(alert.value_rel) else None})
+
+    def emit_health(self, h: Health) -> None:
+        """The 1 Hz GW_Health frame; counters wrap at 12 bits."""
+        self._out("GW_Health", {
+            "GW_Health_GwState": h.gw_state, "GW_Health_BusState": h.bus_state,
+            "GW_Health_ActiveAlerts": min(h.active_alerts, 6),
+            "GW_Health_FramesRx": h.frames_rx, "GW_Health_FramesRejected": h.frames_rejected,
+            "GW_Health_FramesDropped": h.frames_dropped,
+            "GW_Health_RtFactor": h.rtf if math.isfinite(h.rtf) else None})
+
+    def close(self) -> None:
+        """Nothing to release; idempotent."""
+
+
+class LogSink:
+    """Alerts to the log (journald picks up stderr under systemd)."""
+
+    def emit_alert(self, alert: Alert) -> None:
+        level = {Severity.ADVISORY: logging.INFO, Severity.WARNING: logging.WARNING,
+                 Severity.ALARM: logging.ERROR}[alert.severity]
+        if alert.state is not AlertState.RAISED:
+            level = logging.INFO
+        log.log(level, "alert #%d %s %s %s at t=%.1f s (%.0f %% of nominal) %s", alert.seq,
+                alert.state.name.lower(), alert.severity.name.lower(), alert.parameter,
+                alert.t_s, 100 * alert.value_rel, alert.message)
+
+    def close(self) -> None:
+        """Nothing to release; idempotent."""
