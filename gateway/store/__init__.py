@@ -1,0 +1,23 @@
+"""The service's persisted state: a state directory written atomically and read at start-up.
+
+``StateStore`` is the entry point; ``files`` holds the durable-write primitives and
+``codec`` the record formats. The directory layout is in :mod:`gateway.store.store` and
+``docs/alerts.md``.
+"""
+
+from gateway.store.codec import AlertEntry, AuditEntry, BaselineEntry, Checkpoint, EstimateEntry
+from gateway.store.store import (
+    ALERTS,
+    AUDIT,
+    BASELINES,
+    CHECKPOINT,
+    ESTIMATES,
+    ESTIMATES_PREVIOUS,
+    POLICY,
+    StateStore,
+)
+
+__all__ = [
+    "ALERTS", "AUDIT", "BASELINES", "CHECKPOINT", "ESTIMATES", "ESTIMATES_PREVIOUS", "POLICY",
+    "AlertEntry", "AuditEntry", "BaselineEntry", "Checkpoint", "EstimateEntry", "StateStore",
+]

@@ -1,0 +1,172 @@
+"""The persisted record formats of the state directory and their JSON/binary codecs.
+
+Decoders raise ``ValueError``/``KeyError``/``TypeError`` on malformed input; the store
+turns those into :class:`gateway.errors.StateError` naming the file and line. JSON has no
+NaN: non-finite floats are written as ``null`` and read back as NaN.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.records import Alert, AlertState, Estimate, Severity
+
+CHECKPOINT_MAGIC = b"RGWCKPT1"
+"""First 8 bytes of ``checkpoint.bin``; then u32 LE header length, JSON header, blob."""
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """The estimator's latest checkpoint: an opaque ``blob`` and its metadata.
+
+    ``t_s`` data time of the state; ``wall_time_s`` Unix time when saved; ``version`` the
+    estimator's own format tag, so that it can refuse a checkpoint it cannot read.
+    """
+
+    blob: bytes
+    t_s: float
+    wall_time_s: float
+    version: str
+
+
+@dataclass(frozen=True)
+class AlertEntry:
+    """An alert event as persisted, with the Unix time it was written."""
+
+    alert: Alert
+    wall_time_s: float
+
+
+@dataclass(frozen=True)
+class EstimateEntry:
+    """One estimate-history point: ``mean``/``std`` in ``names`` order (N s/m, N s/m, -)."""
+
+    t_s: float
+    wall_time_s: float
+    names: tuple[str, ...]
+    mean: tuple[float, ...]
+    std: tuple[float, ...]
+    ess: float
+
+
+@dataclass(frozen=True)
+class BaselineEntry:
+    """A baseline reset of one parameter (component replaced), at data and Unix time."""
+
+    parameter: str
+    t_s: float
+    wall_time_s: float
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class AuditEntry:
+    """One console write command: what was asked, whether it was done, and when."""
+
+    wall_time_s: float
+    command: str
+    ok: bool
+    detail: str = ""
+    t_s: float | None = None
+
+
+def _out(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _in(x: Any) -> float:
+    if x is None:
+        return math.nan
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        raise TypeError(f"expected a number, got {x!r}")
+    return float(x)
+
+
+def alert_to_json(a: Alert, wall_time_s: float) -> dict[str, Any]:
+    """An alert-history line; severity and state by name, for people reading the file."""
+    return {"seq": a.seq, "t_s": _out(a.t_s), "wall_time_s": _out(wall_time_s),
+            "parameter": a.parameter, "severity": a.severity.name, "state": a.state.name,
+            "code": a.code, "value_rel": _out(a.value_rel), "message": a.message}
+
+
+def alert_from_json(d: dict[str, Any]) -> AlertEntry:
+    seq, code = d["seq"], d["code"]
+    if not (isinstance(seq, int) and isinstance(code, int)):
+        raise TypeError(f"expected integer seq and code, got {seq!r}, {code!r}")
+    alert = Alert(seq, _in(d["t_s"]), str(d["parameter"]), Severity[d["severity"]],
+                  AlertState[d["state"]], code, _in(d["value_rel"]), str(d.get("message", "")))
+    return AlertEntry(alert, _in(d["wall_time_s"]))
+
+
+def estimate_to_json(e: Estimate, wall_time_s: float) -> dict[str, Any]:
+    return {"t_s": _out(e.t_s), "wall_time_s": _out(wall_time_s), "ess": _out(e.ess),
+            "params": {n: [_out(m), _out(s)]
+                       for n, m, s in zip(e.names, e.mean, e.std, strict=True)}}
+
+
+def estimate_from_json(d: dict[str, Any]) -> EstimateEntry:
+    params = d["params"]
+    names = tuple(str(n) for n in params)
+    mean = tuple(_in(params[n][0]) for n in names)
+    std = tuple(_in(params[n][1]) for n in names)
+    return EstimateEntry(_in(d["t_s"]), _in(d["wall_time_s"]), names, mean, std, _in(d["ess"]))
+
+
+def baseline_to_json(b: BaselineEntry) -> dict[str, Any]:
+    return {"parameter": b.parameter, "t_s": _out(b.t_s), "wall_time_s": _out(b.wall_time_s),
+            "note": b.note}
+
+
+def baseline_from_json(d: dict[str, Any]) -> BaselineEntry:
+    return BaselineEntry(str(d["parameter"]), _in(d["t_s"]), _in(d["wall_time_s"]),
+                         str(d.get("note", "")))
+
+
+def audit_to_json(a: AuditEntry) -> dict[str, Any]:
+    return {"wall_time_s": _out(a.wall_time_s), "command": a.command, "ok": a.ok,
+            "detail": a.detail, "t_s": None if a.t_s is None else _out(a.t_s)}
+
+
+def audit_from_json(d: dict[str, Any]) -> AuditEntry:
+    if not isinstance(d["ok"], bool):
+        raise TypeError(f"expected ok true/false, got {d['ok']!r}")
+    return AuditEntry(_in(d["wall_time_s"]), str(d["command"]), d["ok"],
+                      str(d.get("detail", "")), None if d.get("t_s") is None else _in(d["t_s"]))
+
+
+def encode_checkpoint(c: Checkpoint) -> bytes:
+    """``MAGIC | u32 LE header length | header JSON | blob``; the header holds the blob's
+    size and SHA-256, so that a torn or bit-rotted checkpoint is detected on load."""
+    header = json.dumps({"format": CHECKPOINT_FORMAT, "t_s": _out(c.t_s),
+                         "wall_time_s": _out(c.wall_time_s), "version": c.version,
+                         "size": len(c.blob), "sha256": hashlib.sha256(c.blob).hexdigest()},
+                        allow_nan=False).encode()
+    return CHECKPOINT_MAGIC + struct.pack("<I", len(header)) + header + c.blob
+
+
+def decode_checkpoint(data: bytes) -> Checkpoint:
+    """Inverse of :func:`encode_checkpoint`; ValueError ("expected ..., got ...") if corrupt."""
+    n = len(CHECKPOINT_MAGIC)
+    if data[:n] != CHECKPOINT_MAGIC:
+        raise ValueError(f"expected magic {CHECKPOINT_MAGIC!r}, got {data[:n]!r}")
+    if len(data) < n + 4:
+        raise ValueError(f"expected a header length, got {len(data)} bytes in all")
+    (hlen,) = struct.unpack_from("<I", data, n)
+    try:
+        h = json.loads(data[n + 4:n + 4 + hlen])
+        blob = data[n + 4 + hlen:]
+        if h["format"] != CHECKPOINT_FORMAT:
+            raise ValueError(f"expected format {CHECKPOINT_FORMAT}, got {h['format']!r}")
+        if len(blob) != h["size"] or hashlib.sha256(blob).hexdigest() != h["sha256"]:
+            raise ValueError(f"expected a {h['size']}-byte blob with SHA-256 {h['sha256']}, "
+                             f"got {len(blob)} bytes that do not match")
+        return Checkpoint(blob, _in(h["t_s"]), _in(h["wall_time_s"]), str(h["version"]))
+    except (KeyError, TypeError) as err:
+        raise ValueError(f"expected a checkpoint header, got {data[n + 4:n + 4 + hlen]!r} "
+                         f"({err!r})") from err
