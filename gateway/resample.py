@@ -1,0 +1,406 @@
+"""Streaming resampler: decoded sensor frames in, GridSamples on a fixed-rate grid out.
+
+- **Times.** Each node's sample index is unwrapped and mapped to a receive-clock time
+  by its fitted clock model (:mod:`gateway.clocksync`): drift, jitter and reordering
+  are absorbed there. Grid point ``j`` is at ``t_s = j / fs_hz`` on the receive clock.
+- **Values.** Each sensor at grid time t is interpolated linearly between its node's
+  samples ``floor(k(t))`` and ``floor(k(t)) + 1``. If either is absent (a gap of more
+  than one node period, i.e. >= 2 periods between the neighbours used) the entry is
+  MISSING; a NotAvailable value makes it NOT_AVAILABLE; a frame pushed as ``suspect``
+  makes it SUSPECT (value kept). Speed (VEH_Speed, 10 ms) is interpolated, or held
+  from the last sample up to ``speed_timeout_s``, else NaN.
+- **Emission.** Grid points are final, in order and once, as soon as every required
+  node has all its samples up to the one after the point, or when the receive time
+  (the newest frame's timestamp or ``pop_ready(now_s)``) passes the point by
+  ``deadline_s``; then the late node's entries are MISSING. A frame of a sample the
+  grid has already passed is counted in ``late_frames`` and dropped. Finality is
+  decided inside :meth:`Resampler.push`, so the output depends only on the frames and
+  the ``now_s`` values, not on how they are batched.
+- **Filtering.** Per-sensor Butterworth low-pass (:mod:`gateway.lowpass`, ``None`` = off)
+  and a hard low-pass of the yaw rate for curve gating, on the grid, restarted after
+  every gap.
+
+The state (:class:`ResamplerState`) is a plain picklable dataclass; no I/O, no clocks.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import operator
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import cast
+
+import numpy as np
+
+from gateway.clocksync import ClockParams, ClockState, Observation, observe, unwrap
+from gateway.codec import SENSOR_SIGNALS, DecodedFrame, default_codec
+from gateway.errors import ConfigError, InputError, StateError
+from gateway.lowpass import Lowpass, LowpassState, design_lowpass, lowpass_step
+from gateway.model import SENSORS_5
+from gateway.records import GridSample, Quality
+
+LATERAL_MESSAGES: tuple[str, ...] = ("WSN_Lat", "BGN_Lat", "BDN_Lat")
+SPEED_MESSAGE = "VEH_Speed"
+PAPER_LOWPASS_HZ: dict[str, float | None] = {
+    "acc_w1": 40.0, "acc_w2": 40.0, "acc_b": 40.0, "gyro_b": 10.0, "acc_bd": 10.0}
+"""The paper's anti-alias filters (3rd-order Butterworth), per sensor."""
+NO_LOWPASS_HZ: dict[str, float | None] = dict.fromkeys(SENSORS_5)
+"""No anti-alias filtering on any sensor."""
+COUNTERS = ("grid_points", "late_frames", "duplicate_frames", "reordered_frames",
+            "outlier_frames", "resyncs", "ignored_frames", "speed_missing")
+_GYRO = SENSORS_5.index("gyro_b")
+_EMPTY = -(1 << 62)
+"""Ring slot marker: no sample index is ever this."""
+_OK, _MISSING, _NA, _SUSPECT = (int(q) for q in (Quality.OK, Quality.MISSING,
+                                                  Quality.NOT_AVAILABLE, Quality.SUSPECT))
+
+
+@dataclass(frozen=True)
+class ResamplerConfig:
+    """Resampler settings. ``lowpass_hz`` gives every sensor of SENSORS_5 a cut-off in Hz
+    or None (no filter), as a mapping (e.g. :data:`PAPER_LOWPASS_HZ`,
+    :data:`NO_LOWPASS_HZ`) or a 5-sequence in SENSORS_5 order; it is kept as a dict."""
+
+    fs_hz: float
+    lowpass_hz: Mapping[str, float | None] | Sequence[float | None]
+    deadline_s: float = 0.05
+    lowpass_order: int = 3
+    yaw_lowpass_hz: float = 0.5
+    yaw_lowpass_order: int = 2
+    speed_timeout_s: float = 0.1
+    required_messages: tuple[str, ...] = LATERAL_MESSAGES
+    clock: ClockParams = field(default_factory=ClockParams)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.fs_hz) and self.fs_hz > 0):
+            raise ConfigError(f"expected fs_hz > 0, got {self.fs_hz}")
+        lp = self.lowpass_hz
+        if not isinstance(lp, Mapping):
+            if len(lp) != len(SENSORS_5):
+                raise ConfigError(f"expected {len(SENSORS_5)} lowpass_hz values for "
+                                  f"{list(SENSORS_5)}, got {list(lp)}")
+            lp = dict(zip(SENSORS_5, lp, strict=True))
+        if set(lp) != set(SENSORS_5):
+            raise ConfigError(f"expected lowpass_hz for exactly {list(SENSORS_5)}, got "
+                              f"{sorted(lp)}")
+        object.__setattr__(self, "lowpass_hz", dict(lp))
+        if not (self.deadline_s > 0 and self.speed_timeout_s > 0):
+            raise ConfigError(f"expected deadline_s > 0 and speed_timeout_s > 0, got "
+                              f"{self.deadline_s} s, {self.speed_timeout_s} s")
+        if not self.required_messages or not set(self.required_messages) <= set(
+                LATERAL_MESSAGES):
+            raise ConfigError(f"expected required_messages from {LATERAL_MESSAGES}, got "
+                              f"{self.required_messages}")
+
+
+@dataclass
+class NodeState:
+    """One node's clock model and ring buffer of samples, slot ``k % len(ring_k)``."""
+
+    clock: ClockState
+    ring_k: list[int]
+    """Unwrapped index held in each slot; ``_EMPTY`` = none."""
+    ring_v: list[tuple[float, ...]]
+    ring_suspect: list[bool]
+    watermark: int = -1
+    """Every sample up to this index is present or no longer waited for."""
+    seen: bool = False
+
+
+@dataclass
+class ResamplerState:
+    """Everything the resampler carries between calls (pickle it to checkpoint)."""
+
+    config: ResamplerConfig
+    nodes: dict[str, NodeState]
+    filters: list[LowpassState]
+    """One per sensor in SENSORS_5 order (unused where the filter is off)."""
+    yaw_filter: LowpassState
+    counters: dict[str, int]
+    missing: list[int]
+    """Grid points with a MISSING entry, per sensor in SENSORS_5 order."""
+    not_available: list[int]
+    now_s: float = -math.inf
+    next_j: int | None = None
+    """Index of the next grid point (t = j / fs_hz); None until the first lateral frame."""
+    pending: list[GridSample] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class ResamplerStats:
+    """Health counters. ``missing``/``not_available`` count grid points per sensor;
+    ``drift_ppm`` is each node's fitted clock rate against the receive clock (NaN until
+    fitted)."""
+
+    grid_points: int
+    missing: dict[str, int]
+    not_available: dict[str, int]
+    speed_missing: int
+    late_frames: int
+    duplicate_frames: int
+    reordered_frames: int
+    outlier_frames: int
+    resyncs: int
+    ignored_frames: int
+    drift_ppm: dict[str, float]
+
+
+@dataclass(frozen=True)
+class _Stream:
+    message: str
+    cols: tuple[int, ...]
+    values: Callable[[dict[str, float]], tuple[float, ...]]
+    period_s: float
+    ring_size: int
+    lateral: bool
+
+
+def _streams(config: ResamplerConfig) -> dict[str, _Stream]:
+    codec = default_codec()
+    out = {}
+    for message in (*LATERAL_MESSAGES, SPEED_MESSAGE):
+        pairs = [(sensor, sig) for sensor, (msg, sig) in SENSOR_SIGNALS.items() if msg == message]
+        names = [sig for _, sig in pairs]
+        get = operator.itemgetter(*names)
+        values = get if len(names) > 1 else (lambda v, g=get: (g(v),))
+        cols = tuple(SENSORS_5.index(s) for s, _ in pairs if s in SENSORS_5)
+        period_s = (codec.cycle_time_ms(message) or 1) * 1e-3
+        span = 2 * (config.deadline_s + config.speed_timeout_s + 0.1) / period_s + 64
+        out[message] = _Stream(message, cols, values, period_s,
+                               1 << math.ceil(math.log2(span)), message != SPEED_MESSAGE)
+    return out
+
+
+def _advance(node: NodeState, k: int) -> None:
+    """Set the watermark to k, then past every present sample that follows."""
+    ring_k, mask = node.ring_k, len(node.ring_k) - 1
+    while ring_k[(k + 1) & mask] == k + 1:
+        k += 1
+    node.watermark = k
+
+
+class Resampler:
+    """The fixed-rate resampler. ``push`` frames in receive order, ``pop_ready`` the grid."""
+
+    def __init__(self, config: ResamplerConfig, state: ResamplerState | None = None) -> None:
+        self.config = config
+        self._streams = _streams(config)
+        self._lateral = [s for s in self._streams.values() if s.lateral]
+        cutoff_hz = cast("Mapping[str, float | None]", config.lowpass_hz)   # a dict by now
+        self._lp: list[Lowpass | None] = [
+            None if (fc := cutoff_hz[s]) is None else
+            design_lowpass(config.lowpass_order, fc, config.fs_hz) for s in SENSORS_5]
+        self._yaw_lp = design_lowpass(config.yaw_lowpass_order, config.yaw_lowpass_hz,
+                                      config.fs_hz)
+        if state is None:
+            nodes = {s.message: NodeState(ClockState(s.period_s), [_EMPTY] * s.ring_size,
+                                          [()] * s.ring_size, [False] * s.ring_size)
+                     for s in self._streams.values()}
+            state = ResamplerState(config, nodes, [LowpassState() for _ in SENSORS_5],
+                                   LowpassState(), dict.fromkeys(COUNTERS, 0),
+                                   [0] * len(SENSORS_5), [0] * len(SENSORS_5))
+        elif state.config != config:
+            raise StateError(f"expected a resampler state saved with {config}, "
+                             f"got one saved with {state.config}")
+        self._st = state
+        self._required = [state.nodes[m] for m in config.required_messages]
+
+    # ------------------------------------------------------------------ public
+    def snapshot(self) -> ResamplerState:
+        """A deep copy of the state, for checkpoints (restore: ``Resampler(config, state)``)."""
+        return copy.deepcopy(self._st)
+
+    def push(self, frame: DecodedFrame, suspect: bool = False) -> list[GridSample]:
+        """Take one decoded frame (receive order) and return the grid points it made final
+        (usually none or one). Frames of other messages are counted in ``ignored_frames``;
+        ``suspect`` marks its values Quality.SUSPECT on the grid."""
+        self._push(frame, suspect)
+        st = self._st
+        if not st.pending:
+            return []
+        out, st.pending = st.pending, []
+        return out
+
+    def _push(self, frame: DecodedFrame, suspect: bool) -> None:
+        st = self._st
+        t_rx = frame.timestamp_s
+        stream = self._streams.get(frame.message)
+        if stream is None or frame.sample_idx is None or not math.isfinite(t_rx):
+            st.counters["ignored_frames"] += 1
+            return
+        if t_rx > st.now_s:
+            st.now_s = t_rx
+            self._release_until(t_rx - self.config.deadline_s)
+        node = st.nodes[frame.message]
+        clock = node.clock
+        k = unwrap(clock, frame.sample_idx, t_rx)
+        mask = len(node.ring_k) - 1
+        slot = k & mask
+        if node.ring_k[slot] == k:
+            st.counters["duplicate_frames"] += 1
+            return
+        if (stream.lateral and st.next_j is not None and clock.started
+                and k <= math.floor(clock.index_at((st.next_j - 1) / self.config.fs_hz))):
+            st.counters["late_frames"] += 1
+            return
+        k_max = clock.k_max
+        seen = clock.started
+        result = observe(clock, k, t_rx, self.config.clock)
+        if result == Observation.OUTLIER:
+            st.counters["outlier_frames"] += 1
+            return
+        if result == Observation.RESYNC:
+            st.counters["resyncs"] += 1
+            node.ring_k[:] = [_EMPTY] * len(node.ring_k)
+            seen = False
+        elif seen and k < k_max:
+            st.counters["reordered_frames"] += 1
+        node.ring_k[slot] = k
+        node.ring_v[slot] = stream.values(frame.values)
+        node.ring_suspect[slot] = suspect
+        if not stream.lateral:
+            return
+        if not seen:
+            node.seen = True
+            node.watermark = k - 1
+            if st.next_j is None:
+                st.next_j = math.ceil(clock.time_s(k) * self.config.fs_hz)
+        if k == node.watermark + 1:
+            _advance(node, k)
+            self._release_ready()
+
+    def pop_ready(self, now_s: float) -> list[GridSample]:
+        """The grid points final at receive time ``now_s`` (s), in order, each once."""
+        if not math.isfinite(now_s):
+            raise InputError(f"expected a finite now_s, got {now_s}")
+        st = self._st
+        if now_s > st.now_s:
+            st.now_s = now_s
+            if st.next_j is not None:
+                self._release_until(now_s - self.config.deadline_s)
+        out, st.pending = st.pending, []
+        return out
+
+    def flush(self) -> list[GridSample]:
+        """End of stream: finalise every grid point up to the newest sample, and pop."""
+        st = self._st
+        if st.next_j is not None:
+            ends = [n.clock.time_s(n.clock.k_max) for n in st.nodes.values()
+                    if n.seen and n.clock.started]
+            self._release_until(max(ends, default=-math.inf))
+        out, st.pending = st.pending, []
+        return out
+
+    def sample_time_s(self, message: str, k: int) -> float:
+        """Current model time (receive clock, s) of unwrapped sample ``k`` of ``message``."""
+        try:
+            clock = self._st.nodes[message].clock
+        except KeyError:
+            raise InputError(f"expected a message from {sorted(self._st.nodes)}, "
+                             f"got {message!r}") from None
+        return clock.time_s(k) if clock.started else math.nan
+
+    def stats(self) -> ResamplerStats:
+        """A snapshot of the health counters."""
+        st = self._st
+        c = st.counters
+        return ResamplerStats(
+            c["grid_points"], dict(zip(SENSORS_5, st.missing, strict=True)),
+            dict(zip(SENSORS_5, st.not_available, strict=True)), c["speed_missing"],
+            c["late_frames"], c["duplicate_frames"], c["reordered_frames"],
+            c["outlier_frames"], c["resyncs"], c["ignored_frames"],
+            {m: n.clock.drift_ppm for m, n in st.nodes.items()})
+
+    # ------------------------------------------------------------------ grid
+    def _release_ready(self) -> None:
+        """Finalise grid points while every required node has data past them."""
+        st = self._st
+        fs = self.config.fs_hz
+        while st.next_j is not None:
+            t = st.next_j / fs
+            for node in self._required:
+                c = node.clock
+                if not node.seen or node.watermark <= math.floor(
+                        c.k_ref + (t - c.offset_s) / c.period_s):
+                    return
+            self._finalize(st.next_j)
+
+    def _release_until(self, t_max_s: float) -> None:
+        """Finalise every grid point at or before ``t_max_s`` (deadline passed)."""
+        st = self._st
+        if st.next_j is None or st.next_j / self.config.fs_hz > t_max_s:
+            return
+        while st.next_j / self.config.fs_hz <= t_max_s:
+            self._finalize(st.next_j)
+        t_last = (st.next_j - 1) / self.config.fs_hz
+        for stream in self._lateral:       # stop waiting for samples the grid has passed
+            node = st.nodes[stream.message]
+            if node.seen:
+                k0 = math.floor(node.clock.index_at(t_last))
+                if node.watermark < k0:
+                    _advance(node, k0)
+        self._release_ready()
+
+    def _finalize(self, j: int) -> None:
+        """Compute grid point j from the buffered samples and append it to ``pending``."""
+        st = self._st
+        cfg = self.config
+        t = j / cfg.fs_hz
+        raw = [math.nan] * len(SENSORS_5)
+        qual = [_MISSING] * len(SENSORS_5)
+        for stream in self._lateral:
+            node = st.nodes[stream.message]
+            if not node.seen:
+                continue
+            c = node.clock
+            kf = c.k_ref + (t - c.offset_s) / c.period_s
+            k0 = math.floor(kf)
+            mask = len(node.ring_k) - 1
+            s0, s1 = k0 & mask, (k0 + 1) & mask
+            if node.ring_k[s0] != k0 or node.ring_k[s1] != k0 + 1:
+                continue
+            f = kf - k0
+            v0, v1 = node.ring_v[s0], node.ring_v[s1]
+            q = _SUSPECT if node.ring_suspect[s0] or node.ring_suspect[s1] else _OK
+            for i, col in enumerate(stream.cols):
+                x = v0[i] + f * (v1[i] - v0[i])
+                if x != x:
+                    qual[col] = _NA
+                else:
+                    raw[col], qual[col] = x, q
+        speed = self._speed(t)
+        values = np.empty(len(SENSORS_5))
+        for col, x in enumerate(raw):
+            lp = self._lp[col]
+            values[col] = x if lp is None else lowpass_step(lp, st.filters[col], x)
+            if qual[col] == _MISSING:
+                st.missing[col] += 1
+            elif qual[col] == _NA:
+                st.not_available[col] += 1
+        yaw_lp = lowpass_step(self._yaw_lp, st.yaw_filter, raw[_GYRO])
+        st.counters["grid_points"] += 1
+        if speed != speed:
+            st.counters["speed_missing"] += 1
+        st.pending.append(GridSample(t, values, np.array(qual, dtype=np.int8), speed, yaw_lp))
+        st.next_j = j + 1
+
+    def _speed(self, t: float) -> float:
+        """Speed at t: interpolated between VEH samples, else held up to the timeout."""
+        node = self._st.nodes[SPEED_MESSAGE]
+        c = node.clock
+        if not c.started:
+            return math.nan
+        kf = c.index_at(t)
+        k0 = math.floor(kf)
+        ring_k, mask = node.ring_k, len(node.ring_k) - 1
+        if ring_k[k0 & mask] == k0 and ring_k[(k0 + 1) & mask] == k0 + 1:
+            v0, v1 = node.ring_v[k0 & mask][0], node.ring_v[(k0 + 1) & mask][0]
+            return v0 + (kf - k0) * (v1 - v0)
+        k = k0
+        while (kf - k) * c.period_s <= self.config.speed_timeout_s:
+            if ring_k[k & mask] == k:
+                return node.ring_v[k & mask][0]
+            k -= 1
+        return math.nan
