@@ -1,0 +1,193 @@
+"""The seam between the console and the service: the ServiceView protocol and its dict shapes.
+
+The console never imports the service; the service implements :class:`ServiceView`.
+The read side returns plain dicts (JSON-compatible, shapes below) so that the console
+can print them for a fitter and pass them through unchanged in JSON mode; the console
+renders them defensively (missing keys show as "-"). The helpers here
+(:func:`estimates_view`, :func:`alert_view`, :func:`history_row`,
+:func:`resolve_parameter`) build those shapes from the shared records, for the
+service and for :class:`gateway.console.static.StaticView` alike.
+
+Every method is called from the console's port thread: the service must make them
+thread-safe. Write methods are called only after login, with canonical arguments
+(parameter names from :data:`gateway.model.PARAM_NAMES`, a :class:`Severity`), and
+raise :class:`gateway.errors.InputError` ("expected ..., got ...") to refuse.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from gateway.errors import InputError
+from gateway.model import PARAM_NAMES, THETA_NOMINAL
+from gateway.records import Alert, Estimate, Severity
+
+
+class ServiceView(Protocol):
+    """What the console asks of the running service.
+
+    Dict shapes (every key optional for the console; units in the names):
+
+    - ``status()``: ``{"state": "Running", "uptime_s", "version", "data_time_s",
+      "worker": {"alive", "restarts", "pid", "rtf"}, "bus": {"state", "open"},
+      "active_alerts"}``.
+    - ``estimates()``: as built by :func:`estimates_view`.
+    - ``alerts()``: ``(active, recent)``; recent oldest first.
+    - ``history(hours)``: rows as built by :func:`history_row`, oldest first, from the
+      persisted estimate history (including baseline-reset and threshold events).
+    - ``sensors()``: ``{message: {"rate_hz", "expected_hz", "accepted",
+      "rejected": {reason: n}, "lost_frames", "timeouts", "timed_out",
+      "last_values": {signal: value}}}`` (see ``gateway.validate.MessageStats``).
+    - ``bus()``: ``{"interface", "channel", "state", "open", "load_pct",
+      "error_frames", "frames_rx", "frames_tx", "reopens", "dropped", "last_error"}``.
+    - ``config_text()``: the running configuration as TOML (``gateway.config.as_toml``).
+    - ``log_lines(n)``: the last ``n`` log lines, oldest first.
+    - write side: a result dict (shown to the fitter, stored in the audit entry).
+    - ``audit(entry)``: persist one audit entry (a JSON-compatible dict: ``time``,
+      ``t_unix_s``, ``who``, ``port``, ``session``, ``command``, ``args``, ``result``
+      ("ok", "refused", "rejected", "error" or, for login, "failed"/"locked"),
+      ``detail``).
+    """
+
+    def status(self) -> dict[str, Any]: ...
+
+    def estimates(self) -> dict[str, Any]: ...
+
+    def alerts(self) -> tuple[Sequence[Alert], Sequence[Alert]]: ...
+
+    def history(self, hours: float) -> list[dict[str, Any]]: ...
+
+    def sensors(self) -> dict[str, Any]: ...
+
+    def bus(self) -> dict[str, Any]: ...
+
+    def config_text(self) -> str: ...
+
+    def log_lines(self, n: int) -> list[str]: ...
+
+    def acknowledge(self, alert_key: int | str) -> dict[str, Any]: ...
+
+    def baseline_reset(self, component: str) -> dict[str, Any]: ...
+
+    def set_threshold(self, parameter: str, severity: Severity,
+                      value_rel: float) -> dict[str, Any]: ...
+
+    def audit(self, entry: dict[str, Any]) -> None: ...
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    """How a parameter is shown to a fitter: ``value * scale`` in ``unit``."""
+
+    name: str
+    label: str
+    component: str
+    unit: str
+    scale: float
+    aliases: tuple[str, ...]
+
+
+PARAMS: dict[str, ParamInfo] = {
+    "csy_ns_per_m": ParamInfo("csy_ns_per_m", "Csy", "lateral damper", "kNs/m", 1e-3,
+                              ("csy", "lateral-damper", "lateral", "csy_ns_per_m")),
+    "csay_ns_per_m": ParamInfo("csay_ns_per_m", "Csay", "anti-yaw damper", "kNs/m", 1e-3,
+                               ("csay", "anti-yaw-damper", "yaw-damper", "anti-yaw",
+                                "csay_ns_per_m")),
+    "conicity": ParamInfo("conicity", "lambda", "wheelset", "", 1.0,
+                          ("conicity", "wheelset", "lambda", "wheels")),
+}
+"""Display names and the aliases a fitter may type, per :data:`PARAM_NAMES` entry."""
+
+NOMINAL: dict[str, float] = {name: float(getattr(THETA_NOMINAL, name)) for name in PARAM_NAMES}
+
+
+def _norm(text: str) -> str:
+    return text.strip().lower().replace("_", "-")
+
+
+def resolve_parameter(text: str) -> str:
+    """The :data:`PARAM_NAMES` entry a fitter means (``csy``, ``lateral-damper``,
+    ``wheelset``, ...); InputError listing the choices otherwise."""
+    key = _norm(text)
+    for info in PARAMS.values():
+        if key in {_norm(a) for a in info.aliases}:
+            return info.name
+    choices = ", ".join("/".join(info.aliases[:2]) for info in PARAMS.values())
+    raise InputError(f"expected a component or parameter ({choices}), got {text!r}")
+
+
+def _finite(x: float | None) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+def alert_view(alert: Alert) -> dict[str, Any]:
+    """An :class:`Alert` as a JSON-compatible dict (enum names, non-finite as None)."""
+    return {"seq": alert.seq, "t_s": _finite(alert.t_s), "parameter": alert.parameter,
+            "severity": alert.severity.name, "state": alert.state.name,
+            "code": alert.code, "value_rel": _finite(alert.value_rel),
+            "message": alert.message}
+
+
+def judge(value_rel: float | None, thresholds: Mapping[str, Sequence[float | None]]) -> str:
+    """The severity word a bare value reaches against ``{"low": (A, W, Al), "high": ...}``
+    (no hold times or hysteresis; the service's alert state takes precedence)."""
+    if value_rel is None or not math.isfinite(value_rel):
+        return "UNKNOWN"
+    worst = 0
+    for side, levels in thresholds.items():
+        for k, t in enumerate(levels):
+            if t is not None and (value_rel <= t if side == "low" else value_rel >= t):
+                worst = max(worst, k + 1)
+    return Severity(worst).name if worst else "OK"
+
+
+def estimates_view(est: Estimate | None, *,
+                   thresholds: Mapping[str, Mapping[str, Sequence[float | None]]],
+                   active: Sequence[Alert] = (), particles: int | None = None,
+                   max_std_rel: Mapping[str, float] | None = None,
+                   nominal: Mapping[str, float] = NOMINAL) -> dict[str, Any]:
+    """The ``estimates()`` dict from the latest estimate.
+
+    ``{"t_s", "ess", "particles", "updated", "parameters": {name: {"mean", "std",
+    "nominal", "value_rel", "sigma_rel", "thresholds": {"low": [A, W, Al], "high": [...]},
+    "status": "OK"|"ADVISORY"|"WARNING"|"ALARM", "alert_state", "alert_seq",
+    "confident"}}}``. ``status`` is the active alert's severity (the policy's judgement
+    with hold times), else "OK"; ``confident`` is False while ``sigma_rel`` is above the
+    policy's confidence gate ``max_std_rel``. ``est`` None gives no parameters.
+    """
+    out: dict[str, Any] = {"t_s": None, "ess": None, "particles": particles,
+                           "updated": None, "parameters": {}}
+    if est is None:
+        return out
+    out.update(t_s=_finite(est.t_s), ess=_finite(est.ess), updated=est.updated)
+    by_param = {a.parameter: a for a in active}
+    for name, mean, std in zip(est.names, est.mean, est.std, strict=True):
+        nom = nominal.get(name)
+        rel = mean / nom if nom else None
+        sigma_rel = std / max(abs(mean), nom or 0.0) if (mean or nom) else None
+        levels = thresholds.get(name, {})
+        alert = by_param.get(name)
+        gate = (max_std_rel or {}).get(name)
+        out["parameters"][name] = {
+            "mean": _finite(mean), "std": _finite(std), "nominal": nom,
+            "value_rel": _finite(rel), "sigma_rel": _finite(sigma_rel),
+            "thresholds": {side: [_finite(t) for t in lv] for side, lv in levels.items()},
+            "status": alert.severity.name if alert else "OK",
+            "alert_state": alert.state.name if alert else None,
+            "alert_seq": alert.seq if alert else None,
+            "confident": None if gate is None or sigma_rel is None else sigma_rel <= gate,
+        }
+    return out
+
+
+def history_row(t_s: float, est: Estimate | None = None, *, event: str | None = None,
+                time: str | None = None) -> dict[str, Any]:
+    """One ``history()`` row: ``{"t_s", "time" (ISO wall time or None), "estimates":
+    {name: {"mean", "std"}}, "event" (e.g. "baseline reset csy_ns_per_m") or None}``."""
+    ests = {} if est is None else {
+        n: {"mean": _finite(m), "std": _finite(s)}
+        for n, m, s in zip(est.names, est.mean, est.std, strict=True)}
+    return {"t_s": _finite(t_s), "time": time, "estimates": ests, "event": event}
