@@ -21,6 +21,10 @@ COMMANDS: tuple[str, ...] = (
     "gateway.commands.estimate",
     "gateway.commands.bench",
     "gateway.commands.identify",
+    "gateway.commands.console",
+    "gateway.commands.run",
+    "gateway.commands.replay",
+    "gateway.commands.demo",
 )
 
 
