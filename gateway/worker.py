@@ -6,8 +6,10 @@ estimates at the output rate (data time) and a checkpoint every
 last checkpoint, so when a worker dies a new one restores the checkpoint and is fed
 those blocks again: it resumes exactly where the dead one was. A full queue drops
 the block (counted) in live mode; replay blocks instead, so replay is deterministic.
-Workers come from a fork server that has the estimator preloaded, so a restart takes
-well under a second.
+Workers are spawned (a fresh interpreter): numba's OpenMP threading layer aborts in a
+process forked from one that has used it, so fork and a preloading fork server are
+both unsafe here. A worker that dies before finishing any sample three times in a row
+is an error (EstimatorError), not a restart loop.
 """
 
 from __future__ import annotations
@@ -23,10 +25,13 @@ from typing import Any
 
 import numpy as np
 
+from gateway.errors import EstimatorError
 from gateway.records import Estimate, Sample
 
 log = logging.getLogger(__name__)
 
+MAX_FAILED_STARTS = 3
+"""Consecutive worker deaths before the first processed sample that make an error."""
 BLOCK_SAMPLES = 20
 """Samples per queue item (20 ms at 1 kHz): amortises the inter-process cost."""
 
@@ -113,9 +118,7 @@ class WorkerLink:
     def __init__(self, settings: WorkerSettings, *, queue_blocks: int,
                  checkpoint: bytes | None = None, blocking: bool = False,
                  on_checkpoint: Callable[[int, bytes], None] | None = None) -> None:
-        ctx = mp.get_context("forkserver")
-        ctx.set_forkserver_preload(["gateway.worker", "gateway.rbpf", "numpy", "scipy.linalg"])
-        self._ctx = ctx
+        self._ctx = mp.get_context("spawn")
         self._settings = settings
         self._queue_blocks = queue_blocks
         self._blocking = blocking
@@ -127,9 +130,12 @@ class WorkerLink:
         self._out_q: Any = None
         self.stats = WorkerStats()
         self._seq = 0
+        self._failures = 0
+        self._done_at_start = -1
         self._start()
 
     def _start(self) -> None:
+        self._done_at_start = self.stats.last_seq_done
         self._in_q = self._ctx.Queue(maxsize=self._queue_blocks)
         self._out_q = self._ctx.Queue()
         self._proc = self._ctx.Process(target=_worker_main, name="railgw-rbpf", daemon=True,
@@ -155,14 +161,19 @@ class WorkerLink:
                             np.array([s.speed_mps for s in samples]),
                             np.array([s.update for s in samples]))
         self._seq += len(samples)
-        try:
-            if self._blocking:
-                self._in_q.put(block)
-            else:
+        if self._blocking:
+            while True:        # replay: wait for room, but keep the worker supervised
+                try:
+                    self._in_q.put(block, timeout=0.5)
+                    break
+                except queue.Full:
+                    self.supervise()
+        else:
+            try:
                 self._in_q.put_nowait(block)
-        except queue.Full:
-            self.stats.samples_dropped += len(samples)
-            return
+            except queue.Full:
+                self.stats.samples_dropped += len(samples)
+                return
         self._pending.append(block)
         self.stats.samples_sent += len(samples)
 
@@ -199,6 +210,14 @@ class WorkerLink:
         if self._proc is None or self._proc.is_alive():
             return False
         code = self._proc.exitcode
+        if self.stats.last_seq_done == self._done_at_start:
+            self._failures += 1
+            if self._failures >= MAX_FAILED_STARTS:
+                raise EstimatorError(f"expected the estimator worker to run, got "
+                                     f"{self._failures} deaths in a row before its first "
+                                     f"sample (last exit code {code})")
+        else:
+            self._failures = 0
         log.error("estimator worker %s died (exit %s); restarting from checkpoint at sample %d",
                   self._proc.pid, code, self.stats.last_checkpoint_seq)
         self.stats.restarts += 1
