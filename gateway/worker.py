@@ -52,6 +52,22 @@ class SampleBlock:
 
 
 @dataclass(frozen=True)
+class Control:
+    """An instruction for the estimator, applied in order between samples.
+
+    ``method`` names an estimator method taking ``arg`` (e.g. ``reset_parameter``).
+    """
+
+    after_seq: int
+    method: str
+    arg: Any
+
+    @property
+    def last_seq(self) -> int:
+        return self.after_seq
+
+
+@dataclass(frozen=True)
 class WorkerSettings:
     """What a worker needs to build (or restore) its estimator and pace its outputs."""
 
@@ -73,12 +89,19 @@ def _worker_main(settings: WorkerSettings, checkpoint: bytes | None, checkpoint_
     next_out = -math.inf
     next_ckpt = -math.inf
     last_seq = checkpoint_seq if checkpoint else -1
+    applied: set[tuple[int, str]] = set()
     while True:
-        block: SampleBlock | None = in_q.get()
+        block: SampleBlock | Control | None = in_q.get()
         if block is None:
             out_q.put(("checkpoint", last_seq, est.checkpoint()))
             out_q.put(("stopped", last_seq, None))
             return
+        if isinstance(block, Control):
+            key = (block.after_seq, block.method)
+            if block.after_seq >= last_seq and key not in applied:
+                getattr(est, block.method)(block.arg)
+                applied.add(key)
+            continue
         for i in range(len(block.t_s)):
             seq = block.seq0 + i
             if seq <= last_seq:
@@ -124,7 +147,7 @@ class WorkerLink:
         self._blocking = blocking
         self._on_checkpoint = on_checkpoint
         self._checkpoint = checkpoint
-        self._pending: deque[SampleBlock] = deque()
+        self._pending: deque[SampleBlock | Control] = deque()
         self._proc: Any = None
         self._in_q: Any = None
         self._out_q: Any = None
@@ -176,6 +199,13 @@ class WorkerLink:
                 return
         self._pending.append(block)
         self.stats.samples_sent += len(samples)
+
+    def control(self, method: str, arg: Any) -> None:
+        """Apply ``estimator.method(arg)`` after every sample sent so far (kept for replay
+        into a restarted worker until a checkpoint covers it)."""
+        item = Control(self._seq - 1, method, arg)
+        self._in_q.put(item)
+        self._pending.append(item)
 
     def poll(self, timeout_s: float = 0.0) -> list[Estimate]:
         """Estimates received since the last poll; restarts a dead worker first."""

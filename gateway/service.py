@@ -1,0 +1,263 @@
+"""The live gateway service: wires bus, pipeline, sinks, state, console and systemd.
+
+``Service.run()`` is the daemon's main loop. SIGTERM/SIGINT stop it cleanly (final
+checkpoint, state flushed) and SIGHUP reloads the alert thresholds from the config
+file. READY=1 is sent once the bus is open and the worker runs; WATCHDOG=1 only while
+the pipeline makes progress; STATUS= shows the live estimates.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import FrameType
+from typing import Any
+
+from gateway.alerts import AlertPolicy
+from gateway.busload import frame_bits_worst_case
+from gateway.canbus import BusSpec, open_bus
+from gateway.codec import Codec, default_codec
+from gateway.config import Config, load_config
+from gateway.model import PARAM_NAMES
+from gateway.pipeline import Pipeline
+from gateway.records import Alert, Estimate
+from gateway.sdnotify import Notifier
+from gateway.service_view import ServiceViewImpl
+from gateway.sinks import CanSink, Health, LogSink
+from gateway.source import BusSource
+from gateway.state import StateStore
+
+log = logging.getLogger(__name__)
+
+FRAME_BITS = frame_bits_worst_case(8)
+PROGRESS_TIMEOUT_S = 5.0
+"""The worker must have advanced within this long (while work is queued) to feed the watchdog."""
+
+
+def status_line(est: Estimate | None, active_alerts: int, bus_state: str, rtf: float) -> str:
+    """The one-line STATUS= text, e.g. ``Csy 39.8+-0.7 kNs/m, ...``."""
+    if est is None:
+        return f"waiting for estimates; bus {bus_state}"
+    m, s = est.mean, est.std
+    return (f"Csy {m[0] / 1e3:.1f}+-{s[0] / 1e3:.1f} kNs/m, Csay {m[1] / 1e3:.0f}+-"
+            f"{s[1] / 1e3:.0f} kNs/m, conicity {m[2]:.3f}+-{s[2]:.3f}; t={est.t_s:.0f} s; "
+            f"{active_alerts} active alert(s); bus {bus_state}; RTF {rtf:.2f}")
+
+
+@dataclass
+class ServiceFlags:
+    """What the signal handlers ask of the main loop."""
+
+    stop: bool = False
+    reload: bool = False
+
+
+class Service:
+    """The daemon: ``run()`` until stopped; returns the exit status."""
+
+    def __init__(self, cfg: Config, *, config_path: str | None = None,
+                 notifier: Notifier | None = None, codec: Codec | None = None,
+                 console_factory: Callable[[Service], Any] | None = None) -> None:
+        self.cfg = cfg
+        self.config_path = config_path
+        self.notifier = notifier or Notifier()
+        self.codec = codec or default_codec()
+        self.flags = ServiceFlags()
+        self.started_monotonic = time.monotonic()
+        self.store = StateStore(cfg.state.directory, on_corrupt="quarantine")
+        self._console_factory = console_factory
+        self.console: Any = None
+        self.recent_log: list[str] = []
+        self.lock = threading.Lock()
+        spec = BusSpec(cfg.bus.interface, cfg.bus.channel)
+        self.source = BusSource(lambda: open_bus(spec), queue_frames=cfg.bus.rx_queue_frames,
+                                reopen_min_s=cfg.bus.reopen_min_s,
+                                reopen_max_s=cfg.bus.reopen_max_s)
+        self.can_sink = CanSink(self.codec, self.source.send, cfg.estimator.particles)
+        self.log_sink = LogSink()
+        self.policy = AlertPolicy.restore(self.store.load_policy(), None,
+                                          [e.alert for e in self.store.read_alerts()])
+        self.pipeline: Pipeline | None = None
+        self.view = ServiceViewImpl(self)
+        self._load_mark = (time.monotonic(), 0)
+        self._load_pct = 0.0
+
+    # -------------------------------------------------------------- callbacks
+    def _on_checkpoint(self, seq: int, blob: bytes) -> None:
+        t = self.pipeline.last_estimate.t_s if self.pipeline and self.pipeline.last_estimate \
+            else math.nan
+        self.store.save_checkpoint(blob, t_s=t)
+        self.store.save_policy(self.policy.snapshot())
+
+    def _on_estimate(self, est: Estimate) -> None:
+        self.can_sink.emit_estimate(est)
+        self.store.record_estimate(est)
+
+    def on_alert(self, alert: Alert) -> None:
+        """Every alert event, from the policy or a console command: to all sinks."""
+        self.can_sink.emit_alert(alert)
+        self.log_sink.emit_alert(alert)
+        self.store.append_alert(alert)
+        self.store.save_policy(self.policy.snapshot())
+        if self.console is not None:
+            self.console.notify_alert(alert)
+
+    # ---------------------------------------------------------------- signals
+    def install_signal_handlers(self) -> None:
+        def stop(signum: int, frame: FrameType | None) -> None:
+            self.flags.stop = True
+
+        def hup(signum: int, frame: FrameType | None) -> None:
+            self.flags.reload = True
+
+        signal.signal(signal.SIGTERM, stop)
+        signal.signal(signal.SIGINT, stop)
+        signal.signal(signal.SIGHUP, hup)
+
+    def _reload(self) -> None:
+        self.flags.reload = False
+        self.notifier.reloading()
+        try:
+            new = load_config(self.config_path)
+        except Exception as err:  # noqa: BLE001 - a bad reload keeps the running config
+            log.error("reload failed, keeping the running configuration: %s", err)
+        else:
+            changed = [s for s in ("bus", "resampler", "gating", "estimator", "state")
+                       if getattr(new, s) != getattr(self.cfg, s)]
+            if changed:
+                log.warning("reload: sections %s need a restart to take effect", changed)
+            self.cfg = new
+            log.info("configuration reloaded from %s", self.config_path)
+        self.notifier.notify(READY=1, STATUS="configuration reloaded")
+
+    # ------------------------------------------------------------------- loop
+    def health(self) -> Health:
+        p = self.pipeline
+        src = self.source.stats
+        worker = p.worker.stats if p else None
+        if p is None or p.last_estimate is None:
+            state = "Starting"
+        elif not src.bus_open or (worker is not None and not worker.alive):
+            state = "Fault"
+        elif any(m.timed_out for m in p.validator.messages.values()):
+            state = "Degraded"
+        else:
+            state = "Running"
+        dropped = src.dropped_queue_full + src.dropped_kernel + \
+            (worker.samples_dropped if worker else 0)
+        return Health(state, int(src.bus_state), len(self.policy.active),
+                      src.frames_rx, p.validator.stats.rejected_total if p else 0, dropped,
+                      p.rtf if p else math.nan)
+
+    def _progressing(self, last_done: list[float]) -> bool:
+        p = self.pipeline
+        if p is None:
+            return False
+        w = p.worker.stats
+        backlog = p.samples_out - 1 - w.last_seq_done
+        now = time.monotonic()
+        if w.last_seq_done != last_done[0]:
+            last_done[0], last_done[1] = w.last_seq_done, now
+        return w.alive and (backlog <= 2 * 20 or now - last_done[1] < PROGRESS_TIMEOUT_S)
+
+    def run(self) -> int:
+        """Main loop; returns 0 after a clean stop."""
+        ck = self.store.load_checkpoint()
+        blob = ck.blob if ck is not None else None
+        if blob is not None:
+            log.info("resuming the estimator from the persisted checkpoint")
+        self.source.start()
+        self.pipeline = Pipeline(self.cfg, self.codec, policy=self.policy, checkpoint=blob,
+                                 on_checkpoint=self._on_checkpoint,
+                                 on_estimate=self._on_estimate, on_alert=self.on_alert)
+        self.view.publish()
+        if self._console_factory is not None:
+            self.console = self._console_factory(self)
+        elif self.cfg.serial.device:
+            from gateway.console.port import console_port
+
+            self.console = console_port(self.view, self.cfg.serial)
+            if self.console is not None:
+                self.console.start()
+        ready = False
+        next_health = next_status = next_publish = time.monotonic()
+        last_done = [-2.0, time.monotonic()]
+        p = self.pipeline
+        try:
+            while not self.flags.stop:
+                if not ready and self.source.opened.wait(0.05):
+                    ready = True
+                    self.notifier.ready("pipeline up: bus open, estimator running")
+                    log.info("pipeline up")
+                msg = self.source.get(0.01)
+                n = 0
+                while msg is not None and n < 2000:
+                    p.on_frame(msg)
+                    n += 1
+                    msg = self.source.get()
+                p.on_time(time.time())
+                p.poll()
+                self.view.run_pending()
+                if self.flags.reload:
+                    self._reload()
+                now = time.monotonic()
+                if now >= next_health:
+                    next_health = now + 1.0 / self.cfg.output.health_rate_hz
+                    self.can_sink.emit_health(self.health())
+                    if self._progressing(last_done):
+                        self.notifier.watchdog()
+                if now >= next_publish:
+                    next_publish = now + 0.5
+                    self._count_load(now)
+                    self.view.publish()
+                if now >= next_status:
+                    next_status = now + 2.0
+                    self.notifier.status(status_line(
+                        p.last_estimate, len(self.policy.active), self.source.stats.bus_state.name,
+                        p.rtf))
+        finally:
+            self.close()
+        return 0
+
+    def close(self) -> None:
+        """Stop everything, flushing state; idempotent and bounded in time (< 5 s)."""
+        self.notifier.stopping()
+        if self.console is not None:
+            self.console.close()
+            self.console = None
+        if self.pipeline is not None:
+            self.pipeline.close()
+            self.store.save_policy(self.policy.snapshot())
+        self.source.close()
+        self.store.close()
+        self.notifier.close()
+        self.view.close()
+
+    def data_time_s(self) -> float:
+        """Data time of the latest estimate (NaN before the first)."""
+        p = self.pipeline
+        return p.last_estimate.t_s if p is not None and p.last_estimate is not None else math.nan
+
+    def _count_load(self, now: float) -> None:
+        frames = self.source.stats.frames_rx + self.source.stats.frames_tx
+        t0, f0 = self._load_mark
+        if now - t0 >= 1.0:
+            rate = (frames - f0) / (now - t0)
+            self._load_pct = 100.0 * rate * FRAME_BITS / self.codec.bitrate_bps
+            self._load_mark = (now, frames)
+
+    def bus_load_pct(self) -> float:
+        """Measured bus load over the last second or so (worst-case frame length), %."""
+        return round(self._load_pct, 1)
+
+    @property
+    def uptime_s(self) -> float:
+        return time.monotonic() - self.started_monotonic
+
+    def param_names(self) -> tuple[str, ...]:
+        return PARAM_NAMES

@@ -1,0 +1,212 @@
+"""What the running service shows the maintenance console (gateway.console.view.ServiceView).
+
+Reads return snapshots that the main loop publishes (:meth:`publish`) under a lock;
+writes are queued to the main loop, which alone touches the alert policy and the
+worker, and the console thread waits for their result. Thread-safe by construction.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any
+
+from gateway import __version__
+from gateway.config import as_toml
+from gateway.console.view import alert_view, estimates_view, history_row
+from gateway.errors import InputError
+from gateway.model import PARAM_NAMES
+from gateway.records import Alert, Severity
+
+if TYPE_CHECKING:
+    from gateway.service import Service
+
+WRITE_TIMEOUT_S = 5.0
+
+
+class LogTail(logging.Handler):
+    """Keeps the last lines of the log for the console's ``log`` command."""
+
+    def __init__(self, size: int = 500) -> None:
+        super().__init__(level=logging.INFO)
+        self.lines: collections.deque[str] = collections.deque(maxlen=size)
+        self.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.lines.append(self.format(record))
+        except Exception:  # noqa: BLE001 - a log handler must never raise
+            self.handleError(record)
+
+
+class ServiceViewImpl:
+    """The service's side of the console seam."""
+
+    def __init__(self, service: Service) -> None:
+        self._service = service
+        self._lock = threading.Lock()
+        self._snap: dict[str, Any] = {}
+        self._requests: queue.Queue[tuple[Callable[[], dict[str, Any]], queue.Queue[Any]]] = \
+            queue.Queue()
+        self.log_tail = LogTail()
+        logging.getLogger().addHandler(self.log_tail)
+
+    # ------------------------------------------------------ main-loop side
+    def publish(self) -> None:
+        """Snapshot what the console reads (called by the main loop, twice a second)."""
+        s = self._service
+        p = s.pipeline
+        pol = s.policy.config.params
+        est = p.last_estimate if p else None
+        src = s.source.stats
+        worker = p.worker.stats if p else None
+        snap = {
+            "status": {"state": s.health().gw_state, "uptime_s": round(s.uptime_s, 1),
+                       "version": __version__, "data_time_s": est.t_s if est else None,
+                       "worker": {"alive": worker.alive if worker else False,
+                                  "restarts": worker.restarts if worker else 0,
+                                  "pid": p.worker.pid if p else None,
+                                  "rtf": p.rtf if p else None},
+                       "bus": {"state": src.bus_state.name, "open": src.bus_open},
+                       "active_alerts": len(s.policy.active)},
+            "estimates": estimates_view(
+                est, thresholds={n: {"low": pp.low_rel, "high": pp.high_rel}
+                                 for n, pp in pol.items()},
+                active=s.policy.active, particles=s.cfg.estimator.particles,
+                max_std_rel={n: pp.max_std_rel for n, pp in pol.items()}),
+            "sensors": {} if p is None else {
+                name: {"rate_hz": round(m.rate_hz(), 1), "expected_hz": 1.0 / m.cycle_time_s,
+                       "accepted": m.accepted, "rejected": dict(m.rejected),
+                       "lost_frames": m.lost_net, "timeouts": m.timeouts,
+                       "timed_out": m.timed_out, "last_values": dict(m.last_values)}
+                for name, m in p.validator.messages.items()},
+            "bus": {"interface": s.cfg.bus.interface, "channel": s.cfg.bus.channel,
+                    "state": src.bus_state.name, "open": src.bus_open,
+                    "load_pct": s.bus_load_pct(), "error_frames": src.error_frames,
+                    "frames_rx": src.frames_rx, "frames_tx": src.frames_tx,
+                    "reopens": src.reopens,
+                    "dropped": src.dropped_queue_full + src.dropped_kernel,
+                    "last_error": src.last_error},
+            "alerts": (tuple(s.policy.active),
+                       tuple(e.alert for e in s.store.read_alerts()[-50:])),
+        }
+        with self._lock:
+            self._snap = snap
+
+    def run_pending(self) -> None:
+        """Execute queued write requests (main loop only)."""
+        while True:
+            try:
+                action, reply = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                reply.put(("ok", action()))
+            except Exception as err:  # noqa: BLE001 - handed back to the console thread
+                reply.put(("err", err))
+
+    def _call(self, action: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+        reply: queue.Queue[Any] = queue.Queue(maxsize=1)
+        self._requests.put((action, reply))
+        try:
+            kind, value = reply.get(timeout=WRITE_TIMEOUT_S)
+        except queue.Empty:
+            raise InputError("expected the service to answer within 5 s, got no answer") \
+                from None
+        if kind == "err":
+            raise value
+        return value
+
+    def _get(self, key: str, default: Any) -> Any:
+        with self._lock:
+            return self._snap.get(key, default)
+
+    # ------------------------------------------------------ console side
+    def status(self) -> dict[str, Any]:
+        return dict(self._get("status", {"state": "Starting"}))
+
+    def estimates(self) -> dict[str, Any]:
+        return dict(self._get("estimates", {"parameters": {}}))
+
+    def alerts(self) -> tuple[Sequence[Alert], Sequence[Alert]]:
+        active, recent = self._get("alerts", ((), ()))
+        return active, recent
+
+    def history(self, hours: float) -> list[dict[str, Any]]:
+        store = self._service.store
+        since = time.time() - hours * 3600.0
+        rows: list[tuple[float, dict[str, Any]]] = []
+        for e in store.read_estimates(since_wall_s=since):
+            iso = datetime.fromtimestamp(e.wall_time_s, UTC).isoformat(timespec="seconds")
+            rows.append((e.wall_time_s, {
+                "t_s": e.t_s, "time": iso, "event": None,
+                "estimates": {n: {"mean": m, "std": s}
+                              for n, m, s in zip(e.names, e.mean, e.std, strict=True)}}))
+        for b in store.read_baselines():
+            if b.wall_time_s >= since:
+                iso = datetime.fromtimestamp(b.wall_time_s, UTC).isoformat(timespec="seconds")
+                rows.append((b.wall_time_s, history_row(b.t_s, None, time=iso,
+                                                        event=f"baseline reset {b.parameter}")))
+        return [r for _, r in sorted(rows, key=lambda x: x[0])]
+
+    def sensors(self) -> dict[str, Any]:
+        return dict(self._get("sensors", {}))
+
+    def bus(self) -> dict[str, Any]:
+        return dict(self._get("bus", {}))
+
+    def config_text(self) -> str:
+        return as_toml(self._service.cfg)
+
+    def log_lines(self, n: int) -> list[str]:
+        return list(self.log_tail.lines)[-max(0, n):]
+
+    def acknowledge(self, alert_key: int | str) -> dict[str, Any]:
+        def act() -> dict[str, Any]:
+            s = self._service
+            alert = s.policy.acknowledge(alert_key, s.data_time_s())
+            s.on_alert(alert)
+            return {"acknowledged": alert_view(alert)}
+        return self._call(act)
+
+    def baseline_reset(self, component: str) -> dict[str, Any]:
+        if component not in PARAM_NAMES:
+            raise InputError(f"expected a parameter from {list(PARAM_NAMES)}, got {component!r}")
+
+        def act() -> dict[str, Any]:
+            s = self._service
+            t = s.data_time_s()
+            cleared = s.policy.reset_baseline(component, t)
+            for alert in cleared:
+                s.on_alert(alert)
+            if s.pipeline is not None:
+                s.pipeline.worker.control("reset_parameter", PARAM_NAMES.index(component))
+            s.store.append_baseline(component, t, note="baseline reset from the console")
+            s.store.save_policy(s.policy.snapshot())
+            return {"parameter": component, "t_s": t, "cleared_alerts": len(cleared),
+                    "estimator": "re-learning this parameter from the prior"}
+        return self._call(act)
+
+    def set_threshold(self, parameter: str, severity: Severity,
+                      value_rel: float) -> dict[str, Any]:
+        def act() -> dict[str, Any]:
+            s = self._service
+            s.policy.set_threshold(parameter, severity, value_rel)
+            s.store.save_policy(s.policy.snapshot())
+            return {"parameter": parameter, "severity": severity.name, "value_rel": value_rel}
+        return self._call(act)
+
+    def audit(self, entry: dict[str, Any]) -> None:
+        detail = json.dumps({k: v for k, v in entry.items() if k not in ("command",)},
+                            default=str, sort_keys=True)
+        self._service.store.append_audit(str(entry.get("command", "")),
+                                         entry.get("result") == "ok", detail)
+
+    def close(self) -> None:
+        logging.getLogger().removeHandler(self.log_tail)
