@@ -1,0 +1,192 @@
+"""``gateway identify``: calibrate the vehicle model from a recorded run (Kraft et al.).
+
+``identify run DATA.csv --track TRACK.csv`` fits by time-domain least squares;
+without ``--track`` it fits Csy, Csay and lambda by Kalman prediction-error maximum
+likelihood. ``identify synth`` writes a synthetic run (track, data, truth) to try it on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gateway.errors import InputError
+from gateway.identify.data import load_dataset
+from gateway.identify.misfit import MisfitConfig, Section, sections_from_positions
+from gateway.identify.optimise import METHODS, Budget
+from gateway.identify.params import ALL_NAMES, ParamPoint, resolve_names
+from gateway.identify.pipeline import (
+    PredictionErrorIdentifier,
+    TrackConfig,
+    TrackIdentifier,
+)
+from gateway.identify.report import (
+    prediction_error_report,
+    table1,
+    write_json,
+    write_track_report,
+)
+from gateway.identify.synthetic import SyntheticSpec, record
+from gateway.identify.track import random_track, read_track_csv, sine_track, write_track_csv
+from gateway.interchange import write_csv
+from gateway.model import AR_PAPER_DEFAULT, PARAM_NAMES
+
+
+def _range(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected START:STOP, got {text!r}") from None
+    return a, b
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("identify", help="offline identification of model parameters")
+    isub = parser.add_subparsers(dest="identify_command", metavar="WHAT", required=True)
+    p = isub.add_parser("run", help="identify parameters from a recorded run")
+    p.add_argument("data", help="recorded run: interchange CSV")
+    p.add_argument("--track", help="track CSV (position_m, lateral_alignment_m); "
+                   "without it the prediction-error (maximum likelihood) path is used")
+    p.add_argument("--out", default="identify-report", help="output directory")
+    p.add_argument("--speed-mps", type=float, help="speed if the data has no speed_mps column")
+    p.add_argument("--sensors", help="comma-separated sensors (default: all in the file)")
+    p.add_argument("--section", type=_range, action="append", default=[],
+                   metavar="T0:T1", help="learn section in seconds (repeatable)")
+    p.add_argument("--section-m", type=_range, action="append", default=[],
+                   metavar="X0:X1", help="learn section as track positions in m (repeatable)")
+    p.add_argument("--track-offset-m", type=float, default=0.0,
+                   help="track position of the leading wheelset at the first sample [m]")
+    p.add_argument("--params", help="parameters to identify, e.g. Kx,f11,lambda "
+                   "(default: Morris top-k on the track path; Csy,Csay,lambda otherwise)")
+    p.add_argument("--top-k", type=int, default=5, help="parameters Morris selects")
+    p.add_argument("--tolerance", type=float, help="relative half-width of the box "
+                   "(default 0.3 with a track, 0.75 without)")
+    p.add_argument("--methods", default="de,da,nm,ps",
+                   help=f"optimisers, from {','.join(METHODS)}")
+    p.add_argument("--morris-trajectories", type=int, default=8)
+    p.add_argument("--max-lag-s", type=float, default=1.0,
+                   help="synchronisation search range; 0 disables it")
+    p.add_argument("--sim-rate-hz", type=float, default=200.0)
+    p.add_argument("--band-hz", type=_range, default=(0.4, 20.0), metavar="LO:HI")
+    p.add_argument("--ar-paper", type=float, default=AR_PAPER_DEFAULT,
+                   help="track roughness Ar, paper units (prediction-error path)")
+    p.add_argument("--de-maxiter", type=int, default=Budget.de_maxiter)
+    p.add_argument("--da-maxfun", type=int, default=Budget.da_maxfun)
+    p.add_argument("--local-maxfev", type=int, default=Budget.local_maxfev)
+    p.add_argument("--workers", type=int, help="processes (default: all available cores)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--truth", help="truth JSON from 'identify synth', to report errors")
+    p.set_defaults(func=run_identify)
+    s = isub.add_parser("synth", help="write a synthetic run: track.csv, data.csv, truth.json")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--perturb", default="", help="e.g. Kx=+25,f11=-25 (percent)")
+    s.add_argument("--duration-s", type=float, default=40.0)
+    s.add_argument("--fs-hz", type=float, default=200.0)
+    s.add_argument("--speed-mps", type=float, default=42.5)
+    s.add_argument("--track-kind", choices=("random", "sines"), default="random")
+    s.add_argument("--track-rms-m", type=float, default=3e-3)
+    s.add_argument("--offset-m", type=float, default=500.0)
+    s.add_argument("--shift-samples", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=run_synth)
+
+
+def _perturbation(text: str) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        name, _, pct = item.partition("=")
+        try:
+            out[resolve_names([name.strip()])[0]] = 1.0 + float(pct) / 100.0
+        except ValueError:
+            raise InputError(f"expected NAME=PERCENT in --perturb, got {item!r}") from None
+    return out
+
+
+def run_synth(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(args.seed)
+    length = args.offset_m + args.speed_mps * (args.duration_s + 5) + 100
+    if args.track_kind == "random":
+        track = random_track(length, 0.05, args.track_rms_m, rng)
+    else:
+        track = sine_track(length, 0.05, (40.0, 25.0, 12.5, 6.0),
+                           tuple(args.track_rms_m * f for f in (1.0, 0.8, 0.5, 0.3)),
+                           (0.0, 1.0, 2.0, 3.0))
+    truth = ParamPoint.nominal().scaled(_perturbation(args.perturb))
+    spec = SyntheticSpec(duration_s=args.duration_s, fs_hz=args.fs_hz,
+                         speed_mps=args.speed_mps, offset_m=args.offset_m,
+                         shift_samples=args.shift_samples)
+    ds = record(truth, track, spec, rng)
+    write_track_csv(out / "track.csv", track)
+    signals = {s: ds.measured[:, i] for i, s in enumerate(ds.sensors)}
+    signals["speed"] = ds.speed_mps
+    write_csv(out / "data.csv", ds.t_s, signals)
+    (out / "truth.json").write_text(json.dumps(truth.as_dict(), indent=2) + "\n")
+    print(f"wrote {out / 'track.csv'}, {out / 'data.csv'}, {out / 'truth.json'} "
+          f"(track offset {args.offset_m:g} m)")
+    return 0
+
+
+def _truth(path: str | None) -> ParamPoint | None:
+    if path is None:
+        return None
+    try:
+        return ParamPoint.from_dict(json.loads(Path(path).read_text()))
+    except (OSError, ValueError) as err:
+        raise InputError(f"expected a truth JSON of all {len(ALL_NAMES)} parameters, got "
+                         f"{path}: {err}") from err
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    sensors = tuple(s.strip() for s in args.sensors.split(",")) if args.sensors else None
+    ds = load_dataset(args.data, sensors, args.speed_mps)
+    params = resolve_names(args.params.split(",")) if args.params else None
+    truth = _truth(args.truth)
+    sections = [Section(a, b) for a, b in args.section]
+    out = Path(args.out)
+    if args.track is None:
+        if args.section_m:
+            raise InputError("expected --section (seconds) without a track, got --section-m")
+        ident = PredictionErrorIdentifier(sections or None, params or PARAM_NAMES,
+                                          args.tolerance or 0.75, args.ar_paper)
+        ml = ident.fit(ds)
+        out.mkdir(parents=True, exist_ok=True)
+        doc = prediction_error_report(ml, truth)
+        write_json(out / "report.json", doc)
+        for n, v in doc["estimates"].items():
+            print(f"{n:>16} {v['value']:14.6g} +- {v['std']:.3g}")
+        print(f"wrote {out / 'report.json'}")
+        return 0
+    track = read_track_csv(args.track)
+    sections += sections_from_positions(ds, list(args.section_m), args.track_offset_m)
+    if not sections:
+        margin = min(2.0, 0.1 * ds.duration_s)
+        sections = [Section(float(ds.t_s[0]) + margin, float(ds.t_s[-1]) - margin)]
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise InputError(f"expected --methods from {list(METHODS)}, got {args.methods!r}")
+    config = TrackConfig(
+        misfit=MisfitConfig(band_low_hz=args.band_hz[0], band_high_hz=args.band_hz[1],
+                            sim_rate_hz=args.sim_rate_hz),
+        offset_m=args.track_offset_m, tolerance=args.tolerance or 0.3, params=params,
+        top_k=args.top_k, morris_trajectories=args.morris_trajectories, methods=methods,
+        budget=Budget(de_maxiter=args.de_maxiter, da_maxfun=args.da_maxfun,
+                      local_maxfev=args.local_maxfev, seed=args.seed),
+        max_lag_s=args.max_lag_s, workers=args.workers)
+    res = TrackIdentifier(track, sections, config).fit(ds)
+    files = write_track_report(res, out, truth)
+    print(f"identified {', '.join(res.space.names)}; nominal J {res.j_nominal:.4g}")
+    print(f"{'method':<40} {'reduction %':>12} {'final %':>9} {'evals':>7}")
+    for row in table1(res):
+        print(f"{row['method']:<40} {row['reduction_pct']:12.2f} {row['final_pct']:9.3f} "
+              f"{row['evaluations']:7d}")
+    print(f"{res.evals_per_s_one_core:.0f} misfit evaluations/s on one core; "
+          f"wall time {res.wall_s:.1f} s", file=sys.stderr)
+    print("wrote " + ", ".join(str(f) for f in files))
+    return 0
