@@ -48,13 +48,18 @@ def restore_estimator(blob: bytes) -> Any:
     return RBPF.restore(blob)
 
 
+def warm_estimator() -> None:
+    """Import the estimator and load its compiled kernels (a spare worker's warm-up)."""
+    import gateway.rbpf  # noqa: F401
+
+
 def worker_settings(cfg: Config) -> WorkerSettings:
     """How the worker builds, restores and paces the estimator for this configuration."""
     return WorkerSettings(
         builder=functools.partial(build_estimator, cfg.estimator, cfg.resampler.fs_hz),
         restorer=restore_estimator,
         output_interval_s=1.0 / cfg.estimator.output_rate_hz,
-        checkpoint_interval_s=cfg.estimator.checkpoint_interval_s)
+        checkpoint_interval_s=cfg.estimator.checkpoint_interval_s, warmup=warm_estimator)
 
 
 def resampler_config(cfg: Config) -> ResamplerConfig:
@@ -92,7 +97,8 @@ class Pipeline:
                  checkpoint: bytes | None = None, blocking: bool = False,
                  on_checkpoint: Callable[[int, bytes], None] | None = None,
                  on_estimate: Callable[[Estimate], None] | None = None,
-                 on_alert: Callable[[Alert], None] | None = None) -> None:
+                 on_alert: Callable[[Alert], None] | None = None,
+                 keep_spare: bool = True) -> None:
         self.cfg = cfg
         self.validator = Validator(codec)
         self.resampler = Resampler(resampler_config(cfg))
@@ -101,7 +107,7 @@ class Pipeline:
         self.worker = WorkerLink(worker_settings(cfg),
                                  queue_blocks=max(2, cfg.estimator.queue_samples // BLOCK_SAMPLES),
                                  checkpoint=checkpoint, blocking=blocking,
-                                 on_checkpoint=on_checkpoint)
+                                 on_checkpoint=on_checkpoint, keep_spare=keep_spare)
         self._on_estimate = on_estimate
         self._on_alert = on_alert
         self._block: list[Sample] = []

@@ -95,7 +95,7 @@ def replay(path: str | Path, cfg: Config, *, speed: float = 0.0, jsonl: IO[str] 
             jsonl.write(json.dumps(alert_json(alert), sort_keys=True) + "\n")
 
     pipe = Pipeline(cfg, default_codec(), policy=AlertPolicy(), blocking=True,
-                    on_estimate=on_estimate, on_alert=on_alert)
+                    on_estimate=on_estimate, on_alert=on_alert, keep_spare=False)
     wall0 = time.monotonic()
     t0: float | None = None
     try:

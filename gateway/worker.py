@@ -8,12 +8,16 @@ those blocks again: it resumes exactly where the dead one was. A full queue drop
 the block (counted) in live mode; replay blocks instead, so replay is deterministic.
 Workers are spawned (a fresh interpreter): numba's OpenMP threading layer aborts in a
 process forked from one that has used it, so fork and a preloading fork server are
-both unsafe here. A worker that dies before finishing any sample three times in a row
+both unsafe here. A spawned interpreter needs seconds to import and load the compiled
+kernels, so a warm spare worker always waits, imported, for its start message: a dead
+worker is replaced by the spare at once (well under the 2 s target) and a new spare is
+spawned in the background. A worker that dies before finishing any sample three times in a row
 is an error (EstimatorError), not a restart loop.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import multiprocessing as mp
@@ -77,14 +81,22 @@ class WorkerSettings:
     """Picklable callable turning checkpoint bytes back into an estimator."""
     output_interval_s: float
     checkpoint_interval_s: float
+    warmup: Callable[[], None] | None = None
+    """Picklable; run by a spare worker before it waits (imports, loads compiled code)."""
 
 
-def _worker_main(settings: WorkerSettings, checkpoint: bytes | None, checkpoint_seq: int,
-                 in_q: Any, out_q: Any) -> None:
-    """Process entry point: step, report, checkpoint; exits on a None item.
+def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any) -> None:
+    """Process entry point: warm up, wait for ("init", checkpoint, checkpoint_seq), then
+    step, report and checkpoint; exits on a None item.
 
     ``checkpoint_seq`` is the last sample the checkpoint has seen; older ones are skipped.
     """
+    if settings.warmup is not None:
+        settings.warmup()
+    init = in_q.get()
+    if init is None:
+        return
+    _, checkpoint, checkpoint_seq = init
     est = settings.restorer(checkpoint) if checkpoint else settings.builder()
     next_out = -math.inf
     next_ckpt = -math.inf
@@ -117,6 +129,7 @@ def _worker_main(settings: WorkerSettings, checkpoint: bytes | None, checkpoint_
                 if math.isfinite(next_ckpt):
                     out_q.put(("checkpoint", seq, est.checkpoint()))
                 next_ckpt = t + settings.checkpoint_interval_s
+        out_q.put(("progress", last_seq, None))
 
 
 @dataclass
@@ -140,7 +153,8 @@ class WorkerLink:
 
     def __init__(self, settings: WorkerSettings, *, queue_blocks: int,
                  checkpoint: bytes | None = None, blocking: bool = False,
-                 on_checkpoint: Callable[[int, bytes], None] | None = None) -> None:
+                 on_checkpoint: Callable[[int, bytes], None] | None = None,
+                 keep_spare: bool = True) -> None:
         self._ctx = mp.get_context("spawn")
         self._settings = settings
         self._queue_blocks = queue_blocks
@@ -155,18 +169,30 @@ class WorkerLink:
         self._seq = 0
         self._failures = 0
         self._done_at_start = -1
+        self._spare: tuple[Any, Any, Any] | None = None
+        self._keep_spare = keep_spare
         self._start()
+
+    def _spawn(self) -> tuple[Any, Any, Any]:
+        """A new (not yet started on data) worker process and its queues."""
+        in_q = self._ctx.Queue(maxsize=self._queue_blocks)
+        out_q = self._ctx.Queue()
+        proc = self._ctx.Process(target=_worker_main, name="railgw-rbpf", daemon=True,
+                                 args=(self._settings, in_q, out_q))
+        proc.start()
+        return proc, in_q, out_q
 
     def _start(self) -> None:
         self._done_at_start = self.stats.last_seq_done
-        self._in_q = self._ctx.Queue(maxsize=self._queue_blocks)
-        self._out_q = self._ctx.Queue()
-        self._proc = self._ctx.Process(target=_worker_main, name="railgw-rbpf", daemon=True,
-                                       args=(self._settings, self._checkpoint,
-                                             self.stats.last_checkpoint_seq, self._in_q,
-                                             self._out_q))
-        self._proc.start()
+        spare = self._spare
+        self._spare = None
+        if spare is None or not spare[0].is_alive():
+            spare = self._spawn()
+        self._proc, self._in_q, self._out_q = spare
+        self._in_q.put(("init", self._checkpoint, self.stats.last_checkpoint_seq))
         self.stats.alive = True
+        if self._keep_spare:
+            self._spare = self._spawn()
         for block in list(self._pending):        # replay what the checkpoint has not seen
             self._in_q.put(block)
         self.stats.replay_backlog = len(self._pending)
@@ -289,4 +315,12 @@ class WorkerLink:
             self._proc.join(timeout=1.0)
         self._proc = None
         self.stats.alive = False
+        if self._spare is not None:
+            proc, in_q, _ = self._spare
+            self._spare = None
+            with contextlib.suppress(queue.Full, OSError, ValueError):
+                in_q.put_nowait(None)
+            proc.join(timeout=timeout_s)
+            if proc.is_alive():
+                proc.kill()
         return out
