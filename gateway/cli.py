@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
@@ -28,15 +29,26 @@ COMMANDS: tuple[str, ...] = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with every available subcommand."""
+def _selected(argv: Sequence[str]) -> tuple[str, ...]:
+    """Only the module of the command being run, so that e.g. ``run`` does not import the
+    offline-identification stack; every module when the command is unknown or absent."""
+    words = [a for a in argv if not a.startswith("-")]
+    if words:
+        module = f"gateway.commands.{words[0]}"
+        if module in COMMANDS:
+            return (module,)
+    return COMMANDS
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with every available subcommand (or just the one in argv)."""
     parser = argparse.ArgumentParser(
         prog="python -m gateway",
         description="Railway suspension condition-monitoring gateway.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
+    for name in _selected(argv) if argv is not None else COMMANDS:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as err:
@@ -49,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
@@ -60,3 +73,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return err.exit_code
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:                    # e.g. piped into head: not an error
+        sys.stdout = open(os.devnull, "w")     # noqa: SIM115 - silences the exit flush
+        return 0

@@ -83,6 +83,7 @@ class Service:
         self.policy = AlertPolicy.restore(self.store.load_policy(), None,
                                           [e.alert for e in self.store.read_alerts()])
         self.pipeline: Pipeline | None = None
+        self._old_handlers: dict[int, Any] = {}
         self.view = ServiceViewImpl(self)
         self._load_mark = (time.monotonic(), 0)
         self._load_pct = 0.0
@@ -115,9 +116,13 @@ class Service:
         def hup(signum: int, frame: FrameType | None) -> None:
             self.flags.reload = True
 
-        signal.signal(signal.SIGTERM, stop)
-        signal.signal(signal.SIGINT, stop)
-        signal.signal(signal.SIGHUP, hup)
+        self._old_handlers = {sig: signal.signal(sig, handler) for sig, handler in
+                              ((signal.SIGTERM, stop), (signal.SIGINT, stop), (signal.SIGHUP, hup))}
+
+    def _restore_signal_handlers(self) -> None:
+        for sig, handler in self._old_handlers.items():
+            signal.signal(sig, handler)
+        self._old_handlers = {}
 
     def _reload(self) -> None:
         self.flags.reload = False
@@ -237,6 +242,8 @@ class Service:
         self.store.close()
         self.notifier.close()
         self.view.close()
+        if self._old_handlers and threading.current_thread() is threading.main_thread():
+            self._restore_signal_handlers()
 
     def data_time_s(self) -> float:
         """Data time of the latest estimate (NaN before the first)."""

@@ -12,6 +12,8 @@ from __future__ import annotations
 import enum
 import logging
 import queue
+import socket
+import struct
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,6 +30,12 @@ CAN_ERR_RESTARTED = 0x100
 CAN_ERR_CRTL_RX_PASSIVE = 0x10
 CAN_ERR_CRTL_TX_PASSIVE = 0x20
 CAN_ERR_CRTL_ACTIVE = 0x40
+# Frames the kernel dropped because the socket's receive buffer was full: sk_drops, the
+# counter SO_RXQ_OVFL attaches to each frame, read on demand with SO_MEMINFO.
+SO_MEMINFO = 55  # asm-generic/socket.h
+SK_MEMINFO_DROPS = 8  # linux/sock_diag.h
+_MEMINFO = struct.Struct("=9I")
+KERNEL_DROPS_EVERY_FRAMES = 256
 
 
 class BusState(enum.IntEnum):
@@ -52,6 +60,18 @@ def next_bus_state(state: BusState, error_frame: can.Message) -> BusState:
         if data[1] & CAN_ERR_CRTL_ACTIVE:
             return BusState.ERROR_ACTIVE
     return state
+
+
+def kernel_drops(bus: can.BusABC) -> int | None:
+    """Frames the kernel dropped for ``bus``'s socket so far; None without a kernel socket."""
+    sock = getattr(bus, "socket", None)
+    if not isinstance(sock, socket.socket):
+        return None
+    try:
+        raw = sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, _MEMINFO.size)
+    except OSError:
+        return None
+    return _MEMINFO.unpack(raw)[SK_MEMINFO_DROPS]
 
 
 @dataclass
@@ -171,16 +191,29 @@ class BusSource:
     def _receive(self, bus: can.BusABC) -> None:
         stats = self.stats
         put = self._queue.put_nowait
-        while not self._stop.is_set():
-            msg = bus.recv(timeout=0.1)
-            if msg is None:
-                continue
-            if msg.is_error_frame:
-                stats.error_frames += 1
-                stats.bus_state = next_bus_state(stats.bus_state, msg)
-                continue
-            stats.frames_rx += 1
-            try:
-                put(msg)
-            except queue.Full:
-                stats.dropped_queue_full += 1
+        drops_before = stats.dropped_kernel  # a reopened socket counts from 0 again
+        n = 0
+        try:
+            while not self._stop.is_set():
+                msg = bus.recv(timeout=0.1)
+                n += 1
+                if msg is None or n % KERNEL_DROPS_EVERY_FRAMES == 0:
+                    self._count_kernel_drops(bus, drops_before)
+                if msg is None:
+                    continue
+                if msg.is_error_frame:
+                    stats.error_frames += 1
+                    stats.bus_state = next_bus_state(stats.bus_state, msg)
+                    continue
+                stats.frames_rx += 1
+                try:
+                    put(msg)
+                except queue.Full:
+                    stats.dropped_queue_full += 1
+        finally:
+            self._count_kernel_drops(bus, drops_before)
+
+    def _count_kernel_drops(self, bus: can.BusABC, before: int) -> None:
+        drops = kernel_drops(bus)
+        if drops is not None:
+            self.stats.dropped_kernel = before + drops

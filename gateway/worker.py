@@ -182,7 +182,16 @@ class WorkerLink:
         proc.start()
         return proc, in_q, out_q
 
+    @staticmethod
+    def _release(*queues: Any) -> None:
+        """Close queues without waiting for their feeder threads (the reader may be dead)."""
+        for q in queues:
+            if q is not None:
+                q.cancel_join_thread()
+                q.close()
+
     def _start(self) -> None:
+        self._release(self._in_q, self._out_q)
         self._done_at_start = self.stats.last_seq_done
         spare = self._spare
         self._spare = None
@@ -315,12 +324,16 @@ class WorkerLink:
             self._proc.join(timeout=1.0)
         self._proc = None
         self.stats.alive = False
+        self._release(self._in_q, self._out_q)
+        self._in_q = self._out_q = None
         if self._spare is not None:
-            proc, in_q, _ = self._spare
+            proc, in_q, out_q = self._spare
             self._spare = None
             with contextlib.suppress(queue.Full, OSError, ValueError):
                 in_q.put_nowait(None)
             proc.join(timeout=timeout_s)
             if proc.is_alive():
                 proc.kill()
+                proc.join(timeout=1.0)
+            self._release(in_q, out_q)
         return out
