@@ -18,7 +18,7 @@ from firmware_sim.output import send_live, write_log
 from firmware_sim.playback import playback_frames
 from firmware_sim.scenarios import SCENARIOS, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.canbus import DEFAULT_DEMO_BUS, open_bus, parse_bus_spec
+from gateway.canbus import DEFAULT_DEMO_BUS, open_bus, open_node_bus, parse_bus_spec
 from gateway.errors import FrameError, GatewayError, InputError
 from gateway.interchange import read_csv
 
@@ -89,7 +89,7 @@ def _emit(messages: object, args: argparse.Namespace) -> int:
         print(f"wrote {n} frames to {args.out}")
         return 0
     spec = parse_bus_spec(args.bus)
-    with open_bus(spec) as bus:
+    with open_node_bus(spec) as bus:
         n = send_live(messages, bus, speed=args.speed)  # type: ignore[arg-type]
     print(f"sent {n} frames on {spec}")
     return 0
@@ -111,7 +111,7 @@ def cmd_stream(args: argparse.Namespace) -> int:
     sim = _simulation(args)
     spec = parse_bus_spec(args.bus)
     done = threading.Event()
-    with open_bus(spec) as rx, open_bus(spec) as tx:
+    with open_bus(spec) as rx, open_node_bus(spec) as tx:
         def send() -> None:
             send_live(sim.messages(), tx)
             done.set()

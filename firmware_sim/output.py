@@ -39,27 +39,33 @@ def write_log(messages: Iterable[can.Message], path: str | Path) -> int:
 
 def send_live(messages: Iterable[can.Message], bus: can.BusABC, *, speed: float = 1.0,
               clock: Callable[[], float] = time.monotonic,
+              wall: Callable[[], float] = time.time,
               sleep: Callable[[float], None] = time.sleep,
               stop: Callable[[], bool] = lambda: False) -> int:
     """Send messages paced by their timestamps (``speed`` x real time); returns count.
 
     Frames are sent when their time comes; a late sender catches up without sleeping.
+    Each frame carries the wall time at which it is due (``time.time()`` base), which a
+    virtual bus opened with ``preserve_timestamps=True`` hands to receivers like a
+    kernel receive timestamp, so Python scheduling jitter of the sender does not leak
+    into the receiver's timing; SocketCAN stamps frames itself.
     """
     if speed <= 0:
         raise InputError(f"expected a positive playback speed, got {speed}")
     n = 0
     start_wall = clock()
+    start_epoch = wall()
     start_data: float | None = None
     for msg in messages:
         if stop():
             break
         if start_data is None:
             start_data = msg.timestamp
-        due = start_wall + (msg.timestamp - start_data) / speed
-        wait = due - clock()
+        offset = (msg.timestamp - start_data) / speed
+        wait = start_wall + offset - clock()
         if wait > 0.002:
             sleep(wait)
-        bus.send(can.Message(arbitration_id=msg.arbitration_id, data=msg.data,
-                             is_extended_id=msg.is_extended_id, dlc=msg.dlc))
+        bus.send(can.Message(timestamp=start_epoch + offset, arbitration_id=msg.arbitration_id,
+                             data=msg.data, is_extended_id=msg.is_extended_id, dlc=msg.dlc))
         n += 1
     return n

@@ -49,3 +49,12 @@ def open_bus(spec: BusSpec | str, **kwargs: Any) -> can.BusABC:
     """Open the bus (receive_own_messages off); python-can errors propagate."""
     s = parse_bus_spec(spec) if isinstance(spec, str) else spec
     return can.Bus(interface=s.interface, channel=s.channel, ignore_config=True, **kwargs)
+
+
+def open_node_bus(spec: BusSpec | str) -> can.BusABC:
+    """A bus for simulated nodes: on ``virtual`` their frames keep the timestamps the
+    sender gives them (the simulated wire time), as kernel timestamps would."""
+    s = parse_bus_spec(spec) if isinstance(spec, str) else spec
+    if s.interface == "virtual":
+        return open_bus(s, preserve_timestamps=True)
+    return open_bus(s)

@@ -33,7 +33,7 @@ class ResamplerConfig:
     """The fixed-rate grid and the anti-alias low-passes (0 switches a filter off)."""
 
     fs_hz: float = 1000.0
-    deadline_s: float = 0.05
+    deadline_s: float = 0.2
     lowpass_wheelset_acc_hz: float = 0.0
     lowpass_bogie_acc_hz: float = 0.0
     lowpass_gyro_hz: float = 0.0

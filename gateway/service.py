@@ -195,7 +195,7 @@ class Service:
         p = self.pipeline
         try:
             while not self.flags.stop:
-                if not ready and self.source.opened.wait(0.05):
+                if not ready and self.source.opened.wait(0.05) and p.worker.stats.ready:
                     ready = True
                     self.notifier.ready("pipeline up: bus open, estimator running")
                     log.info("pipeline up")
@@ -204,8 +204,9 @@ class Service:
                 while msg is not None and n < 2000:
                     p.on_frame(msg)
                     n += 1
-                    msg = self.source.get()
-                p.on_time(time.time())
+                    msg = self.source.get() if n < 2000 else None
+                if n < 2000:        # queue drained: wall time is the receive clock's "now"
+                    p.on_time(time.time())
                 p.poll()
                 self.view.run_pending()
                 if self.flags.reload:

@@ -21,7 +21,9 @@ import contextlib
 import logging
 import math
 import multiprocessing as mp
+import os
 import queue
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -34,6 +36,8 @@ from gateway.records import Estimate, Sample
 
 log = logging.getLogger(__name__)
 
+WORKER_NICE = 10
+"""How much lower the worker's CPU priority is than the service's."""
 MAX_FAILED_STARTS = 3
 """Consecutive worker deaths before the first processed sample that make an error."""
 BLOCK_SAMPLES = 20
@@ -91,6 +95,10 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any) -> None:
 
     ``checkpoint_seq`` is the last sample the checkpoint has seen; older ones are skipped.
     """
+    # The receive/decode/resample path has deadlines; the estimator has a queue. So the
+    # worker yields the CPU to it (the service's main process keeps the default priority).
+    with contextlib.suppress(OSError):
+        os.nice(WORKER_NICE)
     if settings.warmup is not None:
         settings.warmup()
     init = in_q.get()
@@ -98,6 +106,7 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any) -> None:
         return
     _, checkpoint, checkpoint_seq = init
     est = settings.restorer(checkpoint) if checkpoint else settings.builder()
+    out_q.put(("ready", checkpoint_seq if checkpoint else -1, None))
     next_out = -math.inf
     next_ckpt = -math.inf
     last_seq = checkpoint_seq if checkpoint else -1
@@ -114,6 +123,9 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any) -> None:
                 getattr(est, block.method)(block.arg)
                 applied.add(key)
             continue
+        if last_seq >= 0 and block.seq0 > last_seq + 1:
+            _bridge_gap(est, block, block.seq0 - last_seq - 1)
+            last_seq = block.seq0 - 1
         for i in range(len(block.t_s)):
             seq = block.seq0 + i
             if seq <= last_seq:
@@ -132,12 +144,31 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any) -> None:
         out_q.put(("progress", last_seq, None))
 
 
+MAX_PREDICT_GAP = 500
+"""Longest gap (samples) bridged by predict-only steps; longer ones restart the filters."""
+
+
+def _bridge_gap(est: Any, block: SampleBlock, missing: int) -> None:
+    """Samples that never reached the worker (dropped blocks): predict through a short
+    gap; after a long one restart the Kalman filters (theta particles kept), if the
+    estimator can, since predicting through seconds would only fall further behind."""
+    restart = getattr(est, "restart_filters", None)
+    if missing > MAX_PREDICT_GAP and restart is not None:
+        restart()
+        return
+    dt = float(block.t_s[1] - block.t_s[0]) if len(block.t_s) > 1 else 1e-3
+    nan = np.full(block.values.shape[1], np.nan)
+    for j in range(missing, 0, -1):
+        est.step(Sample(float(block.t_s[0]) - j * dt, nan, float(block.speed_mps[0]), False))
+
+
 @dataclass
 class WorkerStats:
     """Counters of the worker link."""
 
     samples_sent: int = 0
     samples_dropped: int = 0
+    ready: bool = False
     restarts: int = 0
     estimates: int = 0
     checkpoints: int = 0
@@ -170,6 +201,7 @@ class WorkerLink:
         self._failures = 0
         self._done_at_start = -1
         self._spare: tuple[Any, Any, Any] | None = None
+        self._early: list[Estimate] = []
         self._keep_spare = keep_spare
         self._start()
 
@@ -200,6 +232,7 @@ class WorkerLink:
         self._proc, self._in_q, self._out_q = spare
         self._in_q.put(("init", self._checkpoint, self.stats.last_checkpoint_seq))
         self.stats.alive = True
+        self.stats.ready = False
         if self._keep_spare:
             self._spare = self._spawn()
         for block in list(self._pending):        # replay what the checkpoint has not seen
@@ -245,7 +278,8 @@ class WorkerLink:
     def poll(self, timeout_s: float = 0.0) -> list[Estimate]:
         """Estimates received since the last poll; restarts a dead worker first."""
         self.supervise()
-        out: list[Estimate] = []
+        out: list[Estimate] = self._early
+        self._early = []
         wait = timeout_s
         while True:
             try:
@@ -260,6 +294,16 @@ class WorkerLink:
                 self.stats.estimates += 1
             elif kind == "checkpoint":
                 self._checkpointed(seq, payload)
+            elif kind == "ready":
+                self.stats.ready = True
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Poll until the worker has built its estimator; estimates meanwhile are kept
+        for the next :meth:`poll`."""
+        end = time.monotonic() + timeout_s
+        while not self.stats.ready and time.monotonic() < end:
+            self._early.extend(self.poll(timeout_s=0.1))
+        return self.stats.ready
 
     def _checkpointed(self, seq: int, blob: bytes) -> None:
         self._checkpoint = blob

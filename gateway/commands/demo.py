@@ -17,7 +17,7 @@ import time
 from firmware_sim.output import send_live
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.canbus import open_bus
+from gateway.canbus import open_bus, open_node_bus
 from gateway.codec import default_codec
 from gateway.config import Config, with_overrides
 from gateway.errors import FrameError, InputError
@@ -31,7 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulator + gateway on an embedded bus (no hardware)")
     p.add_argument("--scenario", default="lateral-degrading", help="simulator scenario")
     p.add_argument("--duration", type=float, default=100.0, help="seconds of simulation")
-    p.add_argument("--particles", type=int, default=1000, help="RBPF particles")
+    p.add_argument("--particles", type=int, default=500,
+                   help="RBPF particles (default 500: real time with margin on 2 cores, "
+                        "beside the simulator)")
     p.add_argument("--sensors", type=int, choices=(3, 5), default=3)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--state-dir", metavar="DIR",
@@ -104,7 +106,11 @@ def run(args: argparse.Namespace) -> int:
 
         def simulate() -> None:
             service.source.opened.wait(10)
-            with open_bus(f"virtual:{channel}") as tx:
+            end = time.monotonic() + 120      # the worker imports and loads its kernels
+            while time.monotonic() < end and not (
+                    service.pipeline is not None and service.pipeline.worker.stats.ready):
+                time.sleep(0.1)
+            with open_node_bus(f"virtual:{channel}") as tx:
                 send_live(sim.messages(), tx, stop=lambda: service.flags.stop)
             time.sleep(2.0)
             done.set()
