@@ -296,6 +296,24 @@ class RBPF:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
         self._recompute()
 
+    def reset_parameter(self, index: int) -> None:
+        """Baseline reset after a part is replaced: parameter ``index`` re-learns from its
+        prior box while the others keep their particles; every filter restarts."""
+        d = len(self.config.names)
+        if not 0 <= int(index) < d:
+            raise EstimatorError(f"expected a parameter index 0..{d - 1}, got {index}")
+        z = self.z.copy()
+        z[:, int(index)] = self._draw_prior()[:, int(index)]
+        self.z = z
+        self._start_filters()
+
+    def restart_filters(self) -> None:
+        """After a long gap in the data: every Kalman filter restarts from its own prior;
+        the parameter particles and their weights are kept."""
+        logw = self.logw
+        self._start_filters()
+        self.logw = logw
+
     def _reseed_all(self) -> None:
         """Every particle failed (e.g. all unstable): start again from the prior box."""
         self.n_reseeds += 1

@@ -29,8 +29,9 @@ NOMINAL = THETA_NOMINAL.as_array()
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulator + gateway on an embedded bus (no hardware)")
-    p.add_argument("--scenario", default="lateral-degrading", help="simulator scenario")
-    p.add_argument("--duration", type=float, default=100.0, help="seconds of simulation")
+    p.add_argument("--scenario", default="lateral-failing",
+                   help="simulator scenario (default: the lateral damper fails at half-time)")
+    p.add_argument("--duration", type=float, default=60.0, help="seconds of simulation")
     p.add_argument("--particles", type=int, default=500,
                    help="RBPF particles (default 500: real time with margin on 2 cores, "
                         "beside the simulator)")
@@ -103,13 +104,15 @@ def run(args: argparse.Namespace) -> int:
         monitor = Monitor(channel)
         monitor.thread.start()
         done = threading.Event()
+        started = threading.Event()
 
         def simulate() -> None:
             service.source.opened.wait(10)
-            end = time.monotonic() + 120      # the worker imports and loads its kernels
+            end = time.monotonic() + 300      # first run: the kernels compile (~1.5 min)
             while time.monotonic() < end and not (
                     service.pipeline is not None and service.pipeline.worker.stats.ready):
                 time.sleep(0.1)
+            started.set()
             with open_node_bus(f"virtual:{channel}") as tx:
                 send_live(sim.messages(), tx, stop=lambda: service.flags.stop)
             time.sleep(2.0)
@@ -121,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
               f"{args.sensors} sensors; gateway frames read back off the bus:")
         threading.Thread(target=simulate, daemon=True, name="demo-sim").start()
         printer = threading.Thread(target=_print_loop, args=(monitor, scenario, args.duration,
-                                                             done), daemon=True)
+                                                             started, done), daemon=True)
         printer.start()
         service.install_signal_handlers()
         code = service.run()
@@ -135,7 +138,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_loop(monitor: Monitor, scenario: object, duration_s: float,
-                done: threading.Event) -> None:
+                started: threading.Event, done: threading.Event) -> None:
+    if not started.wait(1.0):
+        print("(waiting for the estimator worker: the first run compiles its kernels, "
+              "about 1.5 min; later runs start in seconds)", flush=True)
+        while not started.wait(1.0):
+            if done.is_set():
+                return
     start = time.monotonic()
     shown = 0
     while not done.wait(2.0):
