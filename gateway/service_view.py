@@ -56,6 +56,9 @@ class ServiceViewImpl:
             queue.Queue()
         self.log_tail = LogTail()
         logging.getLogger().addHandler(self.log_tail)
+        ours = logging.getLogger("gateway")
+        if ours.getEffectiveLevel() > logging.INFO:   # the console shows INFO and up
+            ours.setLevel(logging.INFO)
 
     # ------------------------------------------------------ main-loop side
     def publish(self) -> None:
