@@ -89,7 +89,7 @@ class WorkerSettings:
     """Picklable; run by a spare worker before it waits (imports, loads compiled code)."""
 
 
-def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any) -> None:
+def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any) -> None:
     """Process entry point: warm up, wait for ("init", checkpoint, checkpoint_seq), then
     step, report and checkpoint; exits on a None item.
 
@@ -113,7 +113,7 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any) -> None:
     applied: set[tuple[int, str]] = set()
     while True:
         block: SampleBlock | Control | None = in_q.get()
-        if block is None:
+        if block is None or stop.is_set():     # stop now: the backlog is not worked off
             out_q.put(("checkpoint", last_seq, est.checkpoint()))
             out_q.put(("stopped", last_seq, None))
             return
@@ -187,6 +187,7 @@ class WorkerLink:
                  on_checkpoint: Callable[[int, bytes], None] | None = None,
                  keep_spare: bool = True) -> None:
         self._ctx = mp.get_context("spawn")
+        self._stop = self._ctx.Event()
         self._settings = settings
         self._queue_blocks = queue_blocks
         self._blocking = blocking
@@ -210,7 +211,7 @@ class WorkerLink:
         in_q = self._ctx.Queue(maxsize=self._queue_blocks)
         out_q = self._ctx.Queue()
         proc = self._ctx.Process(target=_worker_main, name="railgw-rbpf", daemon=True,
-                                 args=(self._settings, in_q, out_q))
+                                 args=(self._settings, in_q, out_q, self._stop))
         proc.start()
         return proc, in_q, out_q
 
@@ -350,6 +351,10 @@ class WorkerLink:
         if self._proc is None:
             return []
         out: list[Estimate] = []
+        if self._spare is not None:              # holds no state: no need to wait for it
+            self._spare[0].kill()
+        if not self._blocking:
+            self._stop.set()                     # live: checkpoint now, skip the backlog
         try:
             self._in_q.put(None, timeout=timeout_s)
             while True:
