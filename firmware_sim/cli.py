@@ -7,19 +7,17 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import threading
 import time
 from collections.abc import Sequence
-
-import can
 
 from firmware_sim.output import send_live, write_log
 from firmware_sim.playback import playback_frames
 from firmware_sim.scenarios import SCENARIOS, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from gateway.canbus import DEFAULT_DEMO_BUS, open_bus, open_node_bus, parse_bus_spec
-from gateway.errors import FrameError, GatewayError, InputError
+from gateway.cli import dispatch
+from gateway.errors import FrameError, InputError
 from gateway.interchange import read_csv
 
 
@@ -153,13 +151,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args))
-    except GatewayError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return err.exit_code
-    except can.CanError as err:
-        print(f"error: CAN bus: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
+    return dispatch(args)

@@ -14,6 +14,8 @@ import os
 import sys
 from collections.abc import Sequence
 
+import can
+
 from gateway import __version__
 from gateway.errors import GatewayError
 
@@ -66,11 +68,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
+    return dispatch(args)
+
+
+def dispatch(args: argparse.Namespace) -> int:
+    """Run ``args.func``; deliberate failures become one line on stderr and exit codes."""
     try:
         return int(args.func(args))
     except GatewayError as err:
         print(f"error: {err}", file=sys.stderr)
         return err.exit_code
+    except can.CanError as err:
+        print(f"error: CAN bus: {err}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
     except BrokenPipeError:                    # e.g. piped into head: not an error

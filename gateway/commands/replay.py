@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
-from gateway.commands.run import add_overrides, overrides_of
-from gateway.config import load_config, with_overrides
+from gateway.commands.run import add_overrides, config_from_args
 from gateway.errors import InputError
 from gateway.replay import alert_json, replay
 
@@ -27,27 +27,25 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = load_config(args.config)
-    extra = overrides_of(args)
-    if extra:
-        cfg = with_overrides(cfg, extra)
+    cfg = config_from_args(args)
     report_path = Path(args.report)
     jsonl_path = Path(args.jsonl) if args.jsonl else report_path.with_suffix(".jsonl")
-    bar = None
-    if not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(unit=" frames", file=sys.stderr, mininterval=0.5, leave=False)
+    bars: list[Any] = []
 
     def progress(frames: int, t_s: float) -> None:
-        if bar is not None:
-            bar.n = frames
-            bar.set_postfix_str(f"data {t_s:.1f} s", refresh=False)
-            bar.refresh()
+        if args.no_progress:
+            return
+        if not bars:                          # created on first progress, not before errors
+            from tqdm import tqdm
+
+            bars.append(tqdm(unit=" frames", file=sys.stderr, mininterval=0.5, leave=False))
+        bars[0].n = frames
+        bars[0].set_postfix_str(f"data {t_s:.1f} s", refresh=False)
+        bars[0].refresh()
 
     with open(jsonl_path, "w", encoding="utf-8") as jsonl:
         result = replay(args.log, cfg, speed=args.speed, jsonl=jsonl, progress=progress)
-    if bar is not None:
+    for bar in bars:
         bar.close()
     if not result.estimates:
         raise InputError(f"expected sensor traffic the gateway could estimate from in "

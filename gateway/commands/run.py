@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from gateway.config import load_config, with_overrides
+from gateway.config import Config, load_config, with_overrides
 from gateway.service import Service
 
 log = logging.getLogger(__name__)
@@ -41,6 +41,13 @@ def overrides_of(args: argparse.Namespace) -> dict[str, object]:
     return out
 
 
+def config_from_args(args: argparse.Namespace) -> Config:
+    """The configuration file (or defaults) with the command-line overrides applied."""
+    cfg = load_config(args.config)
+    extra = overrides_of(args)
+    return with_overrides(cfg, extra) if extra else cfg
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the gateway service (systemd ExecStart)")
     add_overrides(p)
@@ -48,10 +55,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = load_config(args.config)
-    extra = overrides_of(args)
-    if extra:
-        cfg = with_overrides(cfg, extra)
-    service = Service(cfg, config_path=args.config)
+    service = Service(config_from_args(args), config_path=args.config)
     service.install_signal_handlers()
     return service.run()
