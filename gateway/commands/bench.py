@@ -100,8 +100,22 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
             / (FLOP_PER_PARTICLE_STEP * m * fs)}
 
 
+def _pipeline(args: argparse.Namespace) -> dict[str, Any]:
+    from gateway.bench_pipeline import bench_pipeline
+
+    return {**bench_pipeline(args), **_cores()}
+
+
+def _latency(args: argparse.Namespace) -> dict[str, Any]:
+    from gateway.bench_pipeline import bench_latency
+
+    return {**bench_latency(args), **_cores()}
+
+
 BENCHES: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "estimator": bench_estimator,
+    "pipeline": _pipeline,
+    "latency": _latency,
 }
 
 
