@@ -178,5 +178,9 @@ def test_sigkill_of_the_service_loses_no_alert(tmp_path):
         proc.wait(timeout=15)
     after = [json.loads(x) for x in alerts.read_text().splitlines() if x.strip()]
     assert after[: len(before)] == before                    # nothing lost or rewritten
+    seqs = [a["seq"] for a in after]
+    raised = [a["seq"] for a in after if a["state"] == "RAISED"]
+    assert len(set(raised)) == len(raised)                   # nothing raised twice
+    assert all(b >= a for a, b in zip(seqs, seqs[1:], strict=False))   # seq survives restart
     policy = json.loads((state / "alert_policy.json").read_text())
     assert policy                                            # restored and saved again
