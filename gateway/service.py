@@ -8,6 +8,7 @@ the pipeline makes progress; STATUS= shows the live estimates.
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import signal
@@ -80,8 +81,10 @@ class Service:
                                 reopen_max_s=cfg.bus.reopen_max_s)
         self.can_sink = CanSink(self.codec, self.source.send, cfg.estimator.particles)
         self.log_sink = LogSink()
-        self.policy = AlertPolicy.restore(self.store.load_policy(), None,
-                                          [e.alert for e in self.store.read_alerts()])
+        history = [e.alert for e in self.store.read_alerts()]
+        self.policy = AlertPolicy.restore(self.store.load_policy(), None, history)
+        self.recent_alerts: collections.deque[Alert] = collections.deque(history[-50:],
+                                                                          maxlen=50)
         self.pipeline: Pipeline | None = None
         self._old_handlers: dict[int, Any] = {}
         self.view = ServiceViewImpl(self)
@@ -104,6 +107,7 @@ class Service:
         self.can_sink.emit_alert(alert)
         self.log_sink.emit_alert(alert)
         self.store.append_alert(alert)
+        self.recent_alerts.append(alert)
         self.store.save_policy(self.policy.snapshot())
         if self.console is not None:
             self.console.notify_alert(alert)

@@ -96,8 +96,7 @@ class ServiceViewImpl:
                     "reopens": src.reopens,
                     "dropped": src.dropped_queue_full + src.dropped_kernel,
                     "last_error": src.last_error},
-            "alerts": (tuple(s.policy.active),
-                       tuple(e.alert for e in s.store.read_alerts()[-50:])),
+            "alerts": (tuple(s.policy.active), tuple(s.recent_alerts)),
         }
         with self._lock:
             self._snap = snap
