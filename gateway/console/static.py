@@ -215,8 +215,10 @@ class StaticView:
                "open": True, "bitrate_bps": 1_000_000, "load_pct": 42.3, "error_frames": 7,
                "frames_rx": 518_336_546, "frames_tx": 5_184_012, "reopens": 1, "dropped": 0,
                "last_error": "open failed: [Errno 19] No such device"}
-        cfg = dataclasses.replace(Config(), serial=SerialConfig(
-            device="/dev/ttyS1", pin_sha256=pin_sha256 or "0" * 64))
+        base = Config()  # the example gateway runs 1000 particles, as its ESS line says
+        cfg = dataclasses.replace(base, serial=SerialConfig(
+            device="/dev/ttyS1", pin_sha256=pin_sha256 or "0" * 64),
+            estimator=dataclasses.replace(base.estimator, particles=1000))
         log = [f"INFO gateway.service: checkpoint {k} written (data time {k * 5.0:.1f} s)"
                for k in range(34_540, 34_560)]
         status = {"state": "Degraded", "uptime_s": 48 * 3600.0 + 312.0, "version": __version__,
@@ -224,7 +226,8 @@ class StaticView:
                   "worker": {"alive": True, "restarts": 0, "pid": 4242, "rtf": 3.1},
                   "bus": {"state": "ERROR_ACTIVE", "open": True}}
         return cls(estimate=est, active=active, recent=recent, history=history,
-                   sensors=sensors, bus=bus, config_text=as_toml(cfg), log=log, status=status)
+                   sensors=sensors, bus=bus, config_text=as_toml(cfg), log=log, status=status,
+                   particles=cfg.estimator.particles)
 
 
 def _sensor(rate_hz: float, expected_hz: float, accepted: int, rejected: dict[str, int],
