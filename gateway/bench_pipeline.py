@@ -23,24 +23,15 @@ def bench_pipeline(args: argparse.Namespace) -> dict[str, Any]:
     from firmware_sim.simulation import SimConfig, Simulation
     from gateway.codec import default_codec
     from gateway.config import Config
-    from gateway.gating import Gate
-    from gateway.pipeline import gate_config, resampler_config
-    from gateway.resample import Resampler
-    from gateway.validate import Validator
+    from gateway.pipeline import FrontEnd
 
     messages = list(Simulation(get_scenario("nominal"),
                                SimConfig(duration_s=10.0, seed=args.seed)).messages())
-    cfg = Config()
-    validator = Validator(default_codec())
-    resampler, gate = Resampler(resampler_config(cfg)), Gate(gate_config(cfg))
+    front = FrontEnd(Config(), default_codec())
     cpu0, wall0 = time.process_time(), time.perf_counter()
     points = 0
     for msg in messages:
-        frame = validator.feed(msg)
-        if frame is not None:
-            for g in resampler.push(frame):
-                gate.apply(g)
-                points += 1
+        points += len(front.on_frame(msg))
     cpu = time.process_time() - cpu0
     wall = time.perf_counter() - wall0
     rate = len(messages) / cpu

@@ -10,6 +10,7 @@ The driver (``service.Service`` live, ``replay.replay`` from a log) feeds frames
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
@@ -24,7 +25,7 @@ from gateway.alerts import AlertPolicy
 from gateway.codec import Codec
 from gateway.config import Config, EstimatorConfig
 from gateway.gating import Gate, GateConfig
-from gateway.records import Alert, Estimate, Sample
+from gateway.records import Alert, Estimate, GridSample, Sample
 from gateway.resample import Resampler, ResamplerConfig
 from gateway.validate import Validator
 from gateway.worker import BLOCK_SAMPLES, WorkerLink, WorkerSettings
@@ -82,6 +83,41 @@ def gate_config(cfg: Config) -> GateConfig:
                       curve_yaw_rate_max_radps=g.curve_yaw_rate_max_radps)
 
 
+class FrontEnd:
+    """Frames to estimator samples: Validator -> Resampler -> Gate, no worker, no clock.
+
+    The part of the pipeline before the estimator, shared by :class:`Pipeline` and the
+    offline readers of CAN logs. ``speed_mps`` (offline use only) stands in for the
+    vehicle's speed frames: every grid point is gated with that speed.
+    """
+
+    def __init__(self, cfg: Config, codec: Codec, *, speed_mps: float | None = None) -> None:
+        self.validator = Validator(codec)
+        self.resampler = Resampler(resampler_config(cfg))
+        self.gate = Gate(gate_config(cfg))
+        self.speed_mps = speed_mps
+
+    def on_frame(self, msg: can.Message) -> list[Sample]:
+        """One received frame (any id); rejected frames are counted, never raised."""
+        frame = self.validator.feed(msg)
+        return [] if frame is None else self._gate(self.resampler.push(frame))
+
+    def on_time(self, now_s: float) -> list[Sample]:
+        """Advance time (receive clock): deadlines, message timeouts."""
+        out = self._gate(self.resampler.pop_ready(now_s))
+        self.validator.check_timeouts(now_s)
+        return out
+
+    def finish(self) -> list[Sample]:
+        """End of data: every grid point the frames cover."""
+        return self._gate(self.resampler.flush())
+
+    def _gate(self, grid: list[GridSample]) -> list[Sample]:
+        if self.speed_mps is not None:
+            grid = [dataclasses.replace(g, speed_mps=self.speed_mps) for g in grid]
+        return [self.gate.apply(g) for g in grid]
+
+
 @dataclass
 class Output:
     """What one poll produced, in order."""
@@ -100,9 +136,9 @@ class Pipeline:
                  on_alert: Callable[[Alert], None] | None = None,
                  keep_spare: bool = True) -> None:
         self.cfg = cfg
-        self.validator = Validator(codec)
-        self.resampler = Resampler(resampler_config(cfg))
-        self.gate = Gate(gate_config(cfg))
+        self.front = FrontEnd(cfg, codec)
+        self.validator, self.resampler, self.gate = (
+            self.front.validator, self.front.resampler, self.front.gate)
         self.policy = policy
         self.worker = WorkerLink(worker_settings(cfg),
                                  queue_blocks=max(2, cfg.estimator.queue_samples // BLOCK_SAMPLES),
@@ -119,18 +155,15 @@ class Pipeline:
     # ------------------------------------------------------------------ input
     def on_frame(self, msg: can.Message) -> None:
         """One received frame (any id); rejected frames are counted, never raised."""
-        frame = self.validator.feed(msg)
-        if frame is not None:
-            self._forward(self.resampler.push(frame))
+        self._forward(self.front.on_frame(msg))
 
     def on_time(self, now_s: float) -> None:
         """Advance time (receive clock): deadlines, message timeouts."""
-        self._forward(self.resampler.pop_ready(now_s))
-        self.validator.check_timeouts(now_s)
+        self._forward(self.front.on_time(now_s))
 
     def finish(self) -> None:
         """End of data: release every grid point the frames cover, then flush."""
-        self._forward(self.resampler.flush())
+        self._forward(self.front.finish())
         self.flush()
 
     def flush(self) -> None:
@@ -139,9 +172,9 @@ class Pipeline:
             self.worker.send(self._block)
             self._block = []
 
-    def _forward(self, grid: list[Any]) -> None:
-        for gs in grid:
-            self._block.append(self.gate.apply(gs))
+    def _forward(self, samples: list[Sample]) -> None:
+        for sample in samples:
+            self._block.append(sample)
             self.samples_out += 1
             if len(self._block) >= BLOCK_SAMPLES:
                 self.flush()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -56,12 +57,12 @@ def read_log(path: str | Path) -> Iterator[can.Message]:
         raise InputError(f"expected a CAN log file, got {str(p)!r} (not found)")
     try:
         reader = can.LogReader(str(p))
-    except (ValueError, ImportError, OSError) as err:
+    except (ValueError, ImportError, OSError, struct.error) as err:
         raise InputError(f"expected a CAN log python-can can read (.log, .asc, .blf, ...), "
                          f"got {str(p)!r}: {err}") from err
     try:
         yield from reader
-    except (ValueError, OSError, IndexError) as err:
+    except (ValueError, OSError, IndexError, struct.error) as err:
         raise InputError(f"expected a well-formed CAN log, got an error in {str(p)!r}: "
                          f"{err}") from err
 

@@ -80,13 +80,6 @@ def test_no_speed(tmp_path, capsys):
     _one_line_error(code, err, "expected a speed_mps column or a --speed-mps value")
 
 
-def test_can_log_not_wired_in_yet(tmp_path, capsys):
-    log = tmp_path / "run.asc"
-    log.write_text("")
-    code, _, err = _run(["identify", "run", str(log)], capsys)
-    _one_line_error(code, err, "expected an interchange CSV file (.csv)")
-
-
 def test_synth_then_run_end_to_end(tmp_path, capsys):
     """A short known-track run through the command line, report and figures included."""
     out = tmp_path / "syn"

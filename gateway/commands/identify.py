@@ -1,8 +1,9 @@
 """``gateway identify``: calibrate the vehicle model from a recorded run (Kraft et al.).
 
-``identify run DATA.csv --track TRACK.csv`` fits by time-domain least squares;
-without ``--track`` it fits Csy, Csay and lambda by Kalman prediction-error maximum
-likelihood. ``identify synth`` writes a synthetic run (track, data, truth) to try it on.
+``identify run DATA --track TRACK.csv`` (DATA an interchange CSV or a CAN log) fits by
+time-domain least squares; without ``--track`` it fits Csy, Csay and lambda by Kalman
+prediction-error maximum likelihood. ``identify synth`` writes a synthetic run (track,
+data, truth) to try it on.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gateway.config import load_config
 from gateway.errors import InputError
 from gateway.identify.data import load_dataset
 from gateway.identify.misfit import MisfitConfig, Section, sections_from_positions
@@ -48,7 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("identify", help="offline identification of model parameters")
     isub = parser.add_subparsers(dest="identify_command", metavar="WHAT", required=True)
     p = isub.add_parser("run", help="identify parameters from a recorded run")
-    p.add_argument("data", help="recorded run: interchange CSV")
+    p.add_argument("data", help="recorded run: interchange CSV (.csv) or CAN log "
+                   "(.log, .asc, .blf, .trc, .mf4)")
+    p.add_argument("--config", metavar="FILE", help="gateway TOML whose [resampler] and "
+                   "[gating] settings read a CAN log (default: built-in)")
     p.add_argument("--track", help="track CSV (position_m, lateral_alignment_m); "
                    "without it the prediction-error (maximum likelihood) path is used")
     p.add_argument("--out", default="identify-report", help="output directory")
@@ -144,7 +149,8 @@ def _truth(path: str | None) -> ParamPoint | None:
 
 def run_identify(args: argparse.Namespace) -> int:
     sensors = tuple(s.strip() for s in args.sensors.split(",")) if args.sensors else None
-    ds = load_dataset(args.data, sensors, args.speed_mps)
+    gateway_cfg = load_config(args.config) if args.config else None
+    ds = load_dataset(args.data, sensors, args.speed_mps, gateway_cfg)
     params = resolve_names(args.params.split(",")) if args.params else None
     truth = _truth(args.truth)
     sections = [Section(a, b) for a, b in args.section]

@@ -1,8 +1,9 @@
 """Identification datasets: turn a recorded source into a checked, uniformly sampled run.
 
-:func:`load_dataset` is the seam for new sources: today an interchange CSV
-(:mod:`gateway.interchange`); a CAN-log reader only has to produce a
-:class:`~gateway.interchange.Recording` and hand it to :func:`dataset_from_recording`.
+:func:`load_dataset` is the seam for sources: an interchange CSV
+(:mod:`gateway.interchange`) or a CAN log (:mod:`gateway.identify.canlog`, through the
+gateway's own decode, validation, resampler and gate). Each produces a
+:class:`~gateway.interchange.Recording` for :func:`dataset_from_recording`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gateway.config import Config
 from gateway.errors import InputError
 from gateway.interchange import SENSOR_COLUMNS, Recording, read_csv
 from gateway.model import SENSORS_5
@@ -125,14 +127,22 @@ def _speed(rec: Recording, speed_mps: float | None, n: int) -> np.ndarray:
 
 
 def load_dataset(source: str | Path, sensors: tuple[str, ...] | None = None,
-                 speed_mps: float | None = None) -> Dataset:
-    """The source seam: read a recorded run into a Dataset.
+                 speed_mps: float | None = None, config: Config | None = None) -> Dataset:
+    """The source seam: read a recorded run into a Dataset, chosen by the file ending.
 
-    Supported: interchange CSV (``.csv``). A CAN log (``.asc``, ``.blf``, ``.log``)
-    needs a decoder that yields a Recording; plug it in here.
+    ``.csv``: interchange CSV. ``.log``, ``.asc``, ``.blf``, ``.trc``, ``.mf4``: a CAN log
+    (python-can), put through the gateway's front end with ``config``'s resampler and
+    gating settings (default: built-in). ``speed_mps`` replaces the recorded speed.
     """
+    from gateway.identify.canlog import CAN_LOG_SUFFIXES, read_can_log
+
     path = Path(source)
-    if path.suffix.lower() != ".csv":
-        raise InputError(f"expected an interchange CSV file (.csv), got {str(path)!r} "
-                         f"(CAN-log input is not wired in yet)")
-    return dataset_from_recording(read_csv(path), sensors, speed_mps)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        rec = read_csv(path)
+    elif suffix in CAN_LOG_SUFFIXES:
+        rec = read_can_log(path, config, speed_mps)
+    else:
+        raise InputError(f"expected an interchange CSV (.csv) or a CAN log "
+                         f"({', '.join(CAN_LOG_SUFFIXES)}), got {str(path)!r}")
+    return dataset_from_recording(rec, sensors, speed_mps)

@@ -1,0 +1,125 @@
+"""CAN-log input to ``identify``: the gateway's front end turns a log into the CSV's Recording.
+
+The same simulated run is written twice: as the CAN log the nodes sent
+(``firmware_sim.output.write_log``) and as an interchange CSV of the nodes' own sample
+values put on a 1 kHz grid of the vehicle's (true) clock. Both must give the same
+identification answer.
+"""
+
+import json
+
+import can
+import numpy as np
+import pytest
+from test_identify_cli import _one_line_error, _run
+
+from firmware_sim.output import write_log
+from firmware_sim.scenarios import V_PAPER, get_scenario
+from firmware_sim.simulation import SimConfig, Simulation
+from gateway.identify.canlog import read_can_log
+from gateway.interchange import write_csv
+from gateway.model import SENSOR_NOISE_VAR, SENSORS_3, SENSORS_5
+
+FS_HZ = 1000.0
+
+
+def _interchange_of(sim: Simulation, duration_s: float) -> tuple[np.ndarray, dict]:
+    """The nodes' sample values on the grid k / FS_HZ of true time (linear interpolation)."""
+    t = np.arange(int(duration_s * FS_HZ)) / FS_HZ
+    signals = {}
+    for rec in sim.records.values():
+        t_node = np.concatenate(rec.t_true_s)
+        for q in (*SENSORS_5, "speed"):
+            if rec.values.get(q):
+                signals[q] = np.interp(t, t_node, rec.array(q), left=np.nan, right=np.nan)
+    return t, signals
+
+
+@pytest.fixture(scope="module")
+def paper_run(tmp_path_factory):
+    """The paper's Sec. 4.2 scenario, 5 s, 5 sensors: (log path, csv path)."""
+    out = tmp_path_factory.mktemp("paper")
+    sim = Simulation(get_scenario("paper"), SimConfig(duration_s=5.0, seed=0), record=True)
+    write_log(sim.messages(), out / "run.log")
+    write_csv(out / "run.csv", *_interchange_of(sim, 5.0))
+    return out / "run.log", out / "run.csv"
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
+def test_log_becomes_the_recording_of_its_samples(tmp_path, suffix):
+    """Any python-can log: all sensors, uniform grid, the nodes' values, the VEH speed."""
+    sim = Simulation(get_scenario("paper"), SimConfig(duration_s=1.0, seed=3), record=True)
+    write_log(sim.messages(), tmp_path / f"run{suffix}")
+    rec = read_can_log(tmp_path / f"run{suffix}")
+    assert rec.sensors == SENSORS_5
+    dt = np.diff(rec.t_s)
+    assert np.allclose(dt, 1 / FS_HZ, rtol=1e-9, atol=0)
+    assert 0 <= rec.t_s[0] < 0.02 and rec.t_s[-1] > 0.98
+    assert np.allclose(rec.signals["speed"], V_PAPER)
+    t_csv, csv = _interchange_of(sim, 1.0)
+    for s in SENSORS_5:
+        ref = np.interp(rec.t_s, t_csv, csv[s])      # true time ~ receive time - latency
+        err = rec.signals[s][5:-5] - ref[5:-5]   # the sensor noise, interpolated differently
+        bound = 0.1 * np.std(ref[5:-5]) + 0.7 * np.sqrt(SENSOR_NOISE_VAR[s])
+        assert np.sqrt(np.mean(err**2)) < bound, s
+
+
+def test_three_sensor_log(tmp_path):
+    cfg = SimConfig(duration_s=1.0, seed=1, nodes=("BGN", "BDN", "VEH"))
+    write_log(Simulation(get_scenario("paper"), cfg).messages(), tmp_path / "run.log")
+    assert read_can_log(tmp_path / "run.log").sensors == SENSORS_3
+
+
+@pytest.mark.slow
+def test_log_and_csv_of_one_run_give_the_same_prediction_error_answer(paper_run, capsys):
+    """No track: Csy, Csay and lambda from the log agree with those from the CSV."""
+    docs = []
+    for data in paper_run:
+        rep = data.parent / f"rep-{data.suffix[1:]}"
+        code, out, err = _run(["identify", "run", str(data), "--out", str(rep)], capsys)
+        assert code == 0, err
+        docs.append(json.loads((rep / "report.json").read_text())["estimates"])
+    from_log, from_csv = docs
+    truth = {"csy_ns_per_m": 20e3, "csay_ns_per_m": 3000e3, "conicity": 0.15}
+    for name, value in truth.items():
+        a, b = from_log[name], from_csv[name]
+        assert abs(a["value"] - b["value"]) <= 0.5 * b["std"], (name, a, b)
+        assert abs(a["std"] / b["std"] - 1) < 0.05, (name, a, b)
+        assert abs(a["value"] / value - 1) < 0.10, (name, a)
+
+
+def test_empty_log(tmp_path, capsys):
+    (tmp_path / "run.log").write_text("")
+    code, _, err = _run(["identify", "run", str(tmp_path / "run.log")], capsys)
+    _one_line_error(code, err, "run.log: expected CAN frames, got an empty log")
+
+
+def test_unreadable_blf(tmp_path, capsys):
+    (tmp_path / "run.blf").write_bytes(b"")
+    code, _, err = _run(["identify", "run", str(tmp_path / "run.blf")], capsys)
+    _one_line_error(code, err, "expected a CAN log python-can can read")
+
+
+def test_log_without_sensor_frames(tmp_path, capsys):
+    frames = [can.Message(timestamp=k * 1e-3, arbitration_id=0x7F0, is_extended_id=False,
+                          data=bytes(8)) for k in range(50)]
+    write_log(frames, tmp_path / "run.asc")
+    code, _, err = _run(["identify", "run", str(tmp_path / "run.asc")], capsys)
+    _one_line_error(code, err, "expected valid sensor frames", "got none in 50 frames",
+                    "unknown_id 50")
+
+
+def test_log_the_gate_refuses(tmp_path, capsys):
+    """A speed below the gate's window: no grid point is usable, and the reason is named."""
+    write_log(Simulation(get_scenario("paper"), SimConfig(duration_s=0.5, seed=2)).messages(),
+              tmp_path / "run.log")
+    code, _, err = _run(["identify", "run", str(tmp_path / "run.log"), "--speed-mps", "5"],
+                        capsys)
+    _one_line_error(code, err, "expected grid points the gate passes", "speed_low")
+
+
+def test_unknown_extension(tmp_path, capsys):
+    (tmp_path / "run.dat").write_text("x")
+    code, _, err = _run(["identify", "run", str(tmp_path / "run.dat")], capsys)
+    _one_line_error(code, err, "expected an interchange CSV (.csv) or a CAN log "
+                    "(.log, .asc, .blf, .trc, .mf4), got")
