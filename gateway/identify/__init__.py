@@ -6,6 +6,7 @@ One job per module:
 - ``track``: the known track alignment (CSV, generators, lookup under each wheelset);
 - ``simulate``: the deterministic forced response to that track;
 - ``data``: a recorded source turned into a checked Dataset (the source seam);
+- ``canlog``: a CAN log through the gateway's front end into a Recording;
 - ``synthetic``: "measured" data from a perturbed model, for tests and demos;
 - ``misfit``: Kraft's time-domain least-squares misfit over learn sections;
 - ``sync``: cross-correlation lag of measured against simulated signals;
