@@ -78,12 +78,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--particles", type=int, default=1000)
     ap.add_argument("--fault-at", type=float, default=10.0)
     ap.add_argument("--floor-reference", choices=("nominal", "value"), default="nominal")
+    ap.add_argument("--walk", type=float, default=None,
+                    help="random-walk rate of every parameter, relative per sqrt(s) "
+                         "(default: the estimator's)")
     args = ap.parse_args(argv)
     n = int(round(args.seconds * FS_HZ))
     for seed in args.seeds:
         for ns in args.sensors:
             base: dict[str, Any] = dict(fs_hz=FS_HZ, n_particles=args.particles, sensors=ns,
                                         seed=seed, floor_reference=args.floor_reference)
+            if args.walk is not None:
+                base["walk_rel_per_sqrt_s"] = (args.walk,) * 3
             if args.what == "nominal":
                 th = np.repeat(THETA_NOMINAL.as_array()[None], n, 0)
                 Y = make_data(th, ns, seed)

@@ -55,6 +55,9 @@ class EstimatorConfig:
 
     500 particles by default: on a 2-core gateway the live worker keeps up with the bus
     at 500 (end-to-end latency ~1.5 s) but falls behind at 1000 (README, figures).
+    ``drift_per_sqrt_s``: random-walk evolution of Csy, Csay and lambda (relative std per
+    square root of second of updated data) so that the on-board filter follows a slow
+    change; 0 is the paper's static-parameter filter (docs/estimator.md, "Drift").
     """
 
     particles: int = 500
@@ -62,6 +65,7 @@ class EstimatorConfig:
     seed: int = 0
     track_roughness: float = 2 * 0.33e-3
     estimate_track_roughness: bool = False
+    drift_per_sqrt_s: float = 0.01
     output_rate_hz: float = 10.0
     checkpoint_interval_s: float = 5.0
     queue_samples: int = 5000
@@ -122,6 +126,7 @@ _RULES: dict[tuple[str, str], tuple[str, Any]] = {
     ("estimator", "particles"): (">", 0),
     ("estimator", "sensors"): ("one of", (3, 5)),
     ("estimator", "track_roughness"): (">", 0.0),
+    ("estimator", "drift_per_sqrt_s"): (">=", 0.0),
     ("estimator", "output_rate_hz"): (">", 0.0),
     ("estimator", "checkpoint_interval_s"): (">", 0.0),
     ("estimator", "queue_samples"): (">", 0),

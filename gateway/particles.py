@@ -67,7 +67,8 @@ def weighted_moments(z: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def liu_west_move(rng: np.random.Generator, z: np.ndarray, w: np.ndarray,
                   ancestors: np.ndarray, *, delta: float, steps: int,
-                  floor_log: np.ndarray, widen: float = 1.0) -> np.ndarray:
+                  floor_log: np.ndarray, widen: float = 1.0,
+                  walk_var_log: np.ndarray | None = None) -> np.ndarray:
     """Resample-move with the Liu-West kernel compounded over ``steps`` samples.
 
     The paper's per-sample kernel ``theta' = a theta + (1-a) mean + N(0, h^2 V)``,
@@ -75,7 +76,10 @@ def liu_west_move(rng: np.random.Generator, z: np.ndarray, w: np.ndarray,
     ``steps`` times without reweighting in between, is exactly
     ``a^k theta + (1-a^k) mean + N(0, (1-a^2k) V_f)`` where V_f is V with its diagonal
     raised to ``floor^2 / h^2``. That is what is drawn here, once, at resampling.
-    ``widen`` > 1 scales V_f (used after a detected change). Returns new z (N, d).
+    ``widen`` > 1 scales V_f (used after a detected change). ``walk_var_log`` (d,) adds
+    an independent random-walk step of that variance (log units) to every particle: the
+    parameters' own evolution over the interval, which the kernel above, built for static
+    parameters, does not have. Returns new z (N, d).
     """
     a = shrinkage(delta)
     h2 = 1.0 - a * a
@@ -86,7 +90,10 @@ def liu_west_move(rng: np.random.Generator, z: np.ndarray, w: np.ndarray,
     vals, vecs = np.linalg.eigh(noise_cov)      # PSD square root: V may be rank-deficient
     root = vecs * np.sqrt(np.clip(vals, 0.0, None))
     eps = rng.standard_normal(z.shape)
-    return ak * z[ancestors] + (1.0 - ak) * mean + eps @ root.T
+    znew = ak * z[ancestors] + (1.0 - ak) * mean + eps @ root.T
+    if walk_var_log is not None:
+        znew += rng.standard_normal(z.shape) * np.sqrt(np.asarray(walk_var_log))
+    return znew
 
 
 def effective_sample_size(w: np.ndarray) -> float:

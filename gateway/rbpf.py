@@ -54,7 +54,7 @@ PRIOR_SAMPLES = 2**13
 """The state prior is the covariance this many samples after a start from rest."""
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
-            "_v_ref", "_p0_set")
+            "updated_since_move", "_v_ref", "_p0_set")
 
 
 class RBPF:
@@ -117,6 +117,7 @@ class RBPF:
         m = self.config.n_particles
         self.logw = np.zeros(m)
         self.since_move = 0
+        self.updated_since_move = 0
         self.monitor_state = initial_state()
         self._p0_set = False
         if np.isfinite(self._v_ref):
@@ -215,6 +216,7 @@ class RBPF:
         self.t_s = float(sample.t_s)
         self.n_steps += 1
         self.since_move += 1
+        self.updated_since_move += int(bool(use.any()))
         w, total = pt.normalise_log(self.logw)
         self._w_cache, self._w_of = w, self.logw
         if not np.isfinite(total):
@@ -268,12 +270,23 @@ class RBPF:
         mean = np.exp(w @ self.z) if w.sum() > 0 else cfg.nominal_array
         return cfg.floor_rel * cfg.nominal_array / mean
 
+    def _walk_var_log(self) -> np.ndarray | None:
+        """Random-walk variance (d,) in log units for the updated samples since the last
+        move: the parameters evolve while the vehicle runs, not while it stands."""
+        cfg = self.config
+        if not any(cfg.walk_rel_per_sqrt_s):
+            return None
+        rate = np.zeros(len(cfg.names))
+        rate[:3] = np.square(cfg.walk_rel_per_sqrt_s)
+        return rate * self.updated_since_move / cfg.fs_hz
+
     def _resample_move(self, w: np.ndarray, alarm: bool) -> None:
         cfg = self.config
         floor = self._floor_log()
         anc = pt.systematic(w, float(self.rng.random()))
         znew = pt.liu_west_move(self.rng, self.z, w, anc, delta=cfg.delta,
-                                steps=self.since_move, floor_log=floor)
+                                steps=self.since_move, floor_log=floor,
+                                walk_var_log=self._walk_var_log())
         if alarm:
             self.n_detections += 1
             k = int(round(cfg.reseed_fraction * cfg.n_particles))
@@ -285,6 +298,7 @@ class RBPF:
         self._X = to_lanes(from_lanes(self._X, cfg.n_particles, (NZ,))[anc])
         self.logw = np.zeros(cfg.n_particles)
         self.since_move = 0
+        self.updated_since_move = 0
         self.n_resamples += 1
         if alarm:
             # The states were estimated under the old model: restart every filter from its
@@ -344,7 +358,7 @@ class RBPF:
         if sc["_v_ref"] is not None:
             self._set_speed(float(sc["_v_ref"]), restart=True)
         for k in _SCALARS:
-            if sc[k] is not None:
+            if sc.get(k) is not None:
                 setattr(self, k, type(getattr(self, k))(sc[k]))
         for k, v in arrays.items():
             setattr(self, k, v)

@@ -31,6 +31,9 @@ class RBPFConfig:
     ``ar_prior``: log-uniform factor range on Ar when ``estimate_ar``;
     ``floor_rel``/``floor_reference``: roughening-std floor, a fraction of the nominal
     value (default) or of the parameter's own value;
+    ``walk_rel_per_sqrt_s``: random-walk evolution of each parameter, relative std per
+    square root of second of updated data (0: a static parameter, as in the paper;
+    Ar, when estimated, stays static);
     ``output_every``: default decimation of :meth:`RBPF.run` (one estimate per that many
     samples; :meth:`RBPF.step` always returns one);
     ``threads``: numba threads for the kernels (None: all; 1 below 16 chunks, where the
@@ -54,6 +57,7 @@ class RBPFConfig:
     reseed_fraction: float = 0.5
     ar_prior: tuple[float, float] = (0.25, 4.0)
     floor_rel: float = 1e-3
+    walk_rel_per_sqrt_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     floor_reference: str = "nominal"
     speed_tol: float = 2e-3
     threads: int | None = None
@@ -74,6 +78,10 @@ class RBPFConfig:
         if self.floor_reference not in ("nominal", "value"):
             raise EstimatorError(f"expected floor_reference 'nominal' or 'value', got "
                                  f"{self.floor_reference!r}")
+        if len(self.walk_rel_per_sqrt_s) != 3 or not all(
+                0.0 <= w < 1.0 for w in self.walk_rel_per_sqrt_s):
+            raise EstimatorError(f"expected three random-walk rates in [0, 1) per sqrt(s), "
+                                 f"got {self.walk_rel_per_sqrt_s}")
         if not self.ar_paper > 0:
             raise EstimatorError(f"expected a positive track roughness Ar, got {self.ar_paper}")
 

@@ -61,6 +61,9 @@ class Running:
         for t in self._threads:
             t.start()
         assert self.service.source.opened.wait(10)
+        # what READY=1 tells systemd: the worker runs (before that, samples only queue)
+        assert _wait(lambda: self.service.pipeline is not None
+                     and self.service.pipeline.worker.stats.ready, 120)
         return self
 
     def play(self, scenario: str, duration_s: float, seed: int = 5) -> threading.Thread:
@@ -184,3 +187,77 @@ def test_sigkill_of_the_service_loses_no_alert(tmp_path):
     assert all(b >= a for a, b in zip(seqs, seqs[1:], strict=False))   # seq survives restart
     policy = json.loads((state / "alert_policy.json").read_text())
     assert policy                                            # restored and saved again
+
+
+def _last(run: Running, message: str, signal_name: str) -> float:
+    values = run.decoded(message)
+    assert values, f"no {message} frame came back"
+    return values[-1][signal_name]
+
+
+@pytest.mark.slow
+def test_live_estimates_reach_the_estimator_accuracy_on_the_paper_scenario(tmp_path):
+    """Simulator -> virtual bus -> service -> estimate frames read back: the paper's Sec. 4.2
+    vehicle, 3 sensors, 5 s of data, the service's default particle count; within 10 %
+    (the estimator issue's 3-sensor target), as decoded from our own frames."""
+    with Running(tmp_path, "paper", particles=Config().estimator.particles) as run:
+        run.play("paper", 5.0, seed=0).join()
+        svc = run.service
+        # the worker has consumed the whole run once it estimates past the end of the
+        # data: the grid goes on as a marked gap, where the filter predicts only and the
+        # parameter estimates stay put
+        assert _wait(lambda: _predicting_only(svc), 90)
+        time.sleep(0.5)                               # the last 10 Hz frames go out
+    truth = {"GW_EstCsy": 20e3, "GW_EstCsay": 3000e3, "GW_EstConicity": 0.15}
+    for message, value in truth.items():
+        mean = _last(run, message, f"{message}_Mean")
+        assert abs(mean / value - 1) < 0.10, (message, mean, value)
+
+
+def _predicting_only(svc: Service) -> bool:
+    last = svc.pipeline.last_estimate if svc.pipeline is not None else None
+    return last is not None and not last.updated
+
+
+@pytest.mark.slow
+def test_live_failed_lateral_damper_raises_an_alarm_frame_within_15_s(tmp_path):
+    """lateral-failing on the live bus: Csy steps 40 -> 10 kNs/m at half-time; an ALARM
+    frame for Csy comes back within 15 s of the step (sender clock), none before it.
+    250 particles: the worker must keep up in real time for 40 s on a CI machine that may
+    be busy (500, the default, keeps up on an idle 2-core machine: README, latency)."""
+    duration_s = 40.0
+    with Running(tmp_path, "alarm", particles=250) as run:
+        t_start = time.time()
+        run.play("lateral-failing", duration_s, seed=5).join()
+        t_fail = t_start + duration_s / 2
+        assert _wait(lambda: _alarm_frames(run), 20)
+    codec = default_codec()
+    alerts = [(m.timestamp, codec.decode_message(m).values) for m in list(run.frames)
+              if m.arbitration_id == codec.message("GW_Alert").frame_id]
+    assert all(t > t_fail for t, _ in alerts), alerts          # nothing before the fault
+    first = _alarm_frames(run)[0]
+    assert 0.0 < first.timestamp - t_fail <= 15.0, first.timestamp - t_fail
+
+
+def _alarm_frames(run: Running) -> list[can.Message]:
+    codec = default_codec()
+    out = []
+    for m in list(run.frames):
+        if m.arbitration_id != codec.message("GW_Alert").frame_id:
+            continue
+        v = codec.decode_message(m).values
+        if v["GW_Alert_Param"] == 0 and v["GW_Alert_Severity"] == 3 and v["GW_Alert_State"] == 0:
+            out.append(m)
+    return out
+
+
+@pytest.mark.soak
+@pytest.mark.skipif(os.environ.get("RAILGW_SOAK") != "1",
+                    reason="10 real-time minutes: opt-in with RAILGW_SOAK=1 (CI checks the "
+                           "same pipeline on 10 simulated minutes under replay)")
+def test_live_ten_nominal_minutes_raise_no_alert_frame(tmp_path):
+    with Running(tmp_path, "soak", particles=Config().estimator.particles) as run:
+        run.play("nominal", 600.0, seed=11).join()
+        time.sleep(5.0)
+        assert len(run.decoded("GW_EstCsy")) > 5000           # estimates throughout
+        assert run.decoded("GW_Alert") == []

@@ -43,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="track roughness Ar as printed in the paper (default 2 x 0.33e-3)")
     p.add_argument("--estimate-ar", action="store_true",
                    help="estimate Ar jointly as a 4th parameter")
+    p.add_argument("--drift", type=float, default=0.0, metavar="REL",
+                   help="random-walk drift of the parameters, relative per sqrt(s) (0: the "
+                        "paper's static parameters; the service uses 0.01)")
     p.add_argument("--speed", type=_positive_float, default=42.5,
                    help="speed in m/s when the CSV has no speed_mps column (42.5)")
     p.add_argument("--history-every-s", type=_positive_float, default=0.01,
@@ -71,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     grid = to_grid(rec, sensors, args.speed)
     ar = args.track_roughness if args.track_roughness is not None else AR_PAPER_DEFAULT
     cfg = RBPFConfig(fs_hz=grid.fs_hz, n_particles=args.particles, sensors=args.sensors,
-                     ar_paper=ar, estimate_ar=args.estimate_ar, seed=args.seed)
+                     ar_paper=ar, estimate_ar=args.estimate_ar, seed=args.seed,
+                     walk_rel_per_sqrt_s=(args.drift,) * 3)
     every = max(1, int(round(args.history_every_s * grid.fs_hz)))
     filt = RBPF(cfg)
     start = time.perf_counter()
@@ -83,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     duration_s = float(grid.t_s[-1] - grid.t_s[0]) + 1.0 / grid.fs_hz
     settings = {"file": str(args.csv), "particles": args.particles, "seed": args.seed,
                 "sensors": list(sensors), "track_roughness_ar_paper": ar,
-                "estimate_ar": bool(args.estimate_ar), "grid_rate_hz": grid.fs_hz,
+                "estimate_ar": bool(args.estimate_ar), "drift_per_sqrt_s": args.drift,
+                "grid_rate_hz": grid.fs_hz,
                 "speed_source": "csv" if "speed" in rec.signals else "option",
                 "speed_mps_option": args.speed, "delta": cfg.delta,
                 "ess_threshold": cfg.ess_threshold, "history_every_s": every / grid.fs_hz}

@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     settings = {"particles": cfg.estimator.particles, "sensors": cfg.estimator.sensors,
                 "seed": cfg.estimator.seed, "track_roughness": cfg.estimator.track_roughness,
                 "estimate_track_roughness": cfg.estimator.estimate_track_roughness,
+                "drift_per_sqrt_s": cfg.estimator.drift_per_sqrt_s,
                 "fs_hz": cfg.resampler.fs_hz, "source": str(args.log)}
     diagnostics = {"frames": result.frames, "rejected": result.rejected,
                    "grid_points": result.grid_points}

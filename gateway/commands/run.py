@@ -23,6 +23,8 @@ def add_overrides(p: argparse.ArgumentParser) -> None:
                    help="override [estimator] track_roughness (Ar as printed in the paper)")
     p.add_argument("--estimate-ar", action="store_true", default=None,
                    help="estimate Ar jointly as a 4th parameter")
+    p.add_argument("--drift", type=float, metavar="REL", dest="drift",
+                   help="override [estimator] drift_per_sqrt_s (0: static parameters)")
 
 
 def overrides_of(args: argparse.Namespace) -> dict[str, object]:
@@ -34,7 +36,8 @@ def overrides_of(args: argparse.Namespace) -> dict[str, object]:
     for attr, key in (("state_dir", "state.directory"), ("particles", "estimator.particles"),
                       ("sensors", "estimator.sensors"), ("seed", "estimator.seed"),
                       ("track_roughness", "estimator.track_roughness"),
-                      ("estimate_ar", "estimator.estimate_track_roughness")):
+                      ("estimate_ar", "estimator.estimate_track_roughness"),
+                      ("drift", "estimator.drift_per_sqrt_s")):
         value = getattr(args, attr, None)
         if value is not None:
             out[key] = value
