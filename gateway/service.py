@@ -209,8 +209,13 @@ class Service:
                     p.on_frame(msg)
                     n += 1
                     msg = self.source.get() if n < 2000 else None
-                if n < 2000:        # queue drained: wall time is the receive clock's "now"
-                    p.on_time(time.time())
+                if n < 2000:
+                    # Queue drained: the receive clock's "now" is as far as the receive thread
+                    # has read. Not wall time: frames still waiting in the kernel are not
+                    # missing, and a deadline passed on them would drop them as late.
+                    horizon = min(time.time(), self.source.stats.rx_horizon_s)
+                    if math.isfinite(horizon):
+                        p.on_time(horizon)
                 p.poll()
                 self.view.run_pending()
                 if self.flags.reload:

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
 import queue
 import socket
 import struct
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -88,6 +90,11 @@ class SourceStats:
     bus_open: bool = False
     bus_state: BusState = BusState.ERROR_ACTIVE
     last_error: str = ""
+    rx_horizon_s: float = -math.inf
+    """Receive-clock time (s, ``time.time()`` base) up to which every frame has been taken
+    off the bus: the newest frame's timestamp while frames flow, the wall time after a
+    receive that waited and found none. Behind wall time when this thread lags the
+    kernel; a consumer must not declare data missing past it."""
 
 
 class BusSource:
@@ -200,7 +207,10 @@ class BusSource:
                 if msg is None or n % KERNEL_DROPS_EVERY_FRAMES == 0:
                     self._count_kernel_drops(bus, drops_before)
                 if msg is None:
+                    stats.rx_horizon_s = time.time()
                     continue
+                if msg.timestamp > stats.rx_horizon_s:
+                    stats.rx_horizon_s = msg.timestamp
                 if msg.is_error_frame:
                     stats.error_frames += 1
                     stats.bus_state = next_bus_state(stats.bus_state, msg)
