@@ -21,7 +21,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.signal
 
 from gateway.errors import ConfigError
 
@@ -46,6 +45,11 @@ def design_lowpass(order: int, cutoff_hz: float, fs_hz: float) -> Lowpass:
     if order < 1 or not 0.0 < cutoff_hz < fs_hz / 2:
         raise ConfigError(f"expected order >= 1 and 0 < cutoff < fs/2 = {fs_hz / 2} Hz, "
                           f"got order {order}, cutoff {cutoff_hz} Hz")
+    # Imported here, not at the top: scipy.signal pulls in scipy.stats, most of a second
+    # of start-up, and the estimator workers import this module (they unpickle the
+    # pipeline's estimator factory) without ever designing a filter.
+    import scipy.signal
+
     sos = scipy.signal.butter(order, cutoff_hz, btype="low", output="sos", fs=fs_hz)
     zi = scipy.signal.sosfilt_zi(sos)
     sections = tuple((float(s[0]), float(s[1]), float(s[2]), float(s[4]), float(s[5]))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import pickle
+import subprocess
+import sys
 import time
 from functools import lru_cache
 
@@ -322,3 +324,14 @@ def test_throughput_is_well_above_a_full_bus():
         rs.pop_ready(f.timestamp_s)
     frames_per_s = len(frames) / (time.perf_counter() - t0)
     assert frames_per_s > 16_000, frames_per_s       # typically ~60k/s; 8000/s is the bus
+
+
+def test_estimator_worker_imports_leave_out_the_filter_design():
+    """A worker process imports the pipeline (for its estimator factory) but designs no
+    filter: scipy.signal, most of a second per process here and half a minute under the
+    VM's emulation, is imported only where a filter is designed."""
+    code = ("import sys, gateway.worker, gateway.pipeline, gateway.rbpf; "
+            "print('scipy.signal' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=True)
+    assert proc.stdout.strip() == "False", proc.stdout
