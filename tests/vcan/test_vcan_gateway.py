@@ -1,90 +1,186 @@
-"""End to end over vcan0: simulator -> ``python -m gateway run`` -> estimate, alert, health frames.
+"""End to end over vcan0: recorded simulator traffic -> ``python -m gateway run`` -> frames back.
 
-THE PLACE FOR THE GATEWAY SERVICE'S END-TO-END TESTS (issue 7, item 1). They are
-written against the service's documented behaviour and skipped until
-``GATEWAY_E2E_READY`` is True: flip it once ``python -m gateway run`` works, run
-``tests/vm/run-vcan-suite.sh``, and adjust what the service does differently.
+The service runs as systemd would start it (``vcanlib.GatewayProcess``: its own
+NOTIFY_SOCKET, READY=1, STATUS=, SIGTERM), on SocketCAN, with a configuration file
+that changes only what the VM needs (below). A reader with kernel filters on the
+gateway's own ids reads its estimate, alert and health frames back off the bus.
 
-Helpers (tests/vcan/vcanlib.py): ``GatewayProcess`` starts the service with its own
-NOTIFY_SOCKET (``wait_ready()`` on READY=1, ``status`` = the last STATUS=, ``stop()``
-= SIGTERM and the exit status); ``python_module`` runs the simulator; ``RawCan``
-injects error frames; ``grow_rcvbuf`` keeps a slow reader from dropping frames.
+In the VM these tests skip unless ``RAILGW_VCAN_GATEWAY=1``: there the live service
+advances only about 0.7 s of data per 40 s of wall time so far (docs/vcan.md, "The
+gateway end to end"). Where a real vcan0 is, they run.
 
-Under qemu's TCG Python runs 20-50x slower than on the host: use few particles, a
-short run, and add any numba kernel the service compiles to tests/vm/prewarm.py
-(WARMUPS), or the guest spends minutes compiling it.
+One service serves both tests (module fixture): under qemu's TCG a start costs one to
+two minutes (the service and its two estimator workers, active and warm spare, each
+import numpy, scipy and numba: 20-75 s per process, measured in the VM). The
+configuration changes only the estimator's grid rate and particle count
+(``e2e_traffic.OVERRIDES``, which says why and what they still achieve).
+
+In the VM the kernel's default socket receive buffer (``net.core.rmem_default``) is
+raised while the service runs: its receive thread, 30x slower under TCG, cannot take
+3 100 frames/s off the socket as they come, and the default buffer holds only a
+tenth of a second of them. On a real machine the defaults apply.
 """
 
 from __future__ import annotations
 
+import os
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import can
+import e2e_traffic
 import pytest
-from vcanlib import WAIT_S, GatewayProcess, RawCan, grow_rcvbuf, python_module
+from vcanlib import CHANNEL, WAIT_S, GatewayProcess, RawCan, grow_rcvbuf, rmem_default
 
 from gateway.canbus import open_bus
-from gateway.codec import Codec
-from gateway.source import CAN_ERR_BUSOFF, BusState
+from gateway.codec import Codec, DecodedFrame
+from gateway.model import THETA_NOMINAL
+from gateway.source import CAN_ERR_BUSOFF, CAN_ERR_RESTARTED, BusState
 
-GATEWAY_E2E_READY = False
-"""Flip to True once ``python -m gateway run`` is in (issue 4)."""
+IN_VM = os.environ.get("RAILGW_IN_VM") == "1"
+RUN_IN_VM = os.environ.get("RAILGW_VCAN_GATEWAY") == "1"
 pytestmark = [
     pytest.mark.vcan,
-    pytest.mark.skipif(not GATEWAY_E2E_READY,
-                       reason="the gateway service's end-to-end test is not enabled yet "
-                              "(GATEWAY_E2E_READY in tests/vcan/test_vcan_gateway.py)"),
+    pytest.mark.skipif(IN_VM and not RUN_IN_VM,
+                       reason="the gateway end to end is too slow under qemu's TCG so far: "
+                              "the live service advances about 0.7 s of data per 40 s there "
+                              "(docs/vcan.md); RAILGW_VCAN_GATEWAY=1 runs it anyway"),
 ]
 
-GATEWAY_MESSAGES = ("GW_EstCsy", "GW_EstCsay", "GW_EstConicity", "GW_Alert", "GW_Health")
+ESTIMATES = ("GW_EstCsy", "GW_EstCsay", "GW_EstConicity")
+GATEWAY_MESSAGES = (*ESTIMATES, "GW_Alert", "GW_Health")
+READY_WAIT_S = 5 * WAIT_S
+"""Start-up under TCG: the service, then its two workers importing numba (about 60-90 s)."""
+RESULTS_WAIT_S = 3 * WAIT_S
+"""From the end of the playback to the last estimate, under TCG."""
+RCVBUF_DEFAULT_BYTES = 64 << 20
+"""The VM's socket receive buffer default while the service runs: the whole run fits."""
+PARAM_CSY = 0
+"""GW_Alert_Param of Csy (the DBC's value table)."""
+RAISED = 0
+NOTE_EVERY_S = 20.0
 
 
-def _gateway_frames_bus(channel: str, codec: Codec) -> can.BusABC:
-    """A reader of the gateway's own frames only (kernel filters on their ids)."""
+T0 = time.monotonic()
+
+
+def note(what: str) -> None:
+    """A progress line with the time since the module started (shown with -s or on failure)."""
+    print(f"[{time.monotonic() - T0:6.1f} s] {what}", flush=True)
+
+
+class Gateway:
+    """The running service and a reader of its frames; ``frames`` collects them by message."""
+
+    def __init__(self, gw: GatewayProcess, reader: can.BusABC, codec: Codec) -> None:
+        self.gw, self.reader, self.codec = gw, reader, codec
+        self.frames: dict[str, list[DecodedFrame]] = {n: [] for n in GATEWAY_MESSAGES}
+
+    def read_until(self, cond: Callable[[], bool], timeout_s: float) -> bool:
+        """Read frames (kept in ``frames``) until ``cond()`` or ``timeout_s`` passes."""
+        end = time.monotonic() + timeout_s
+        next_note = time.monotonic() + NOTE_EVERY_S
+        while not cond():
+            now = time.monotonic()
+            if now > end or self.gw.proc.poll() is not None:
+                self.note_progress()
+                return False
+            if now > next_note:
+                next_note = now + NOTE_EVERY_S
+                self.note_progress()
+            msg = self.reader.recv(timeout=0.5)
+            if msg is not None:
+                frame = self.codec.decode_message(msg)
+                self.frames[frame.message].append(frame)
+        return True
+
+    def note_progress(self) -> None:
+        """What came back so far, the last health and Csy values, and STATUS=."""
+        self.gw.poll_notifications(0.01)
+        last = {n: f[-1].values for n, f in self.frames.items() if f and n in
+                ("GW_Health", "GW_EstCsy")}
+        note(f"frames back {({n: len(f) for n, f in self.frames.items()})}; last {last}; "
+             f"STATUS={self.gw.status!r}")
+
+    def last(self, message: str) -> DecodedFrame:
+        return self.frames[message][-1]
+
+
+@pytest.fixture(scope="module")
+def gateway(tmp_path_factory: pytest.TempPathFactory, codec: Codec) -> Iterator[Gateway]:
+    tmp = tmp_path_factory.mktemp("gateway")
+    state = tmp / "state"
+    config = tmp / "railgw.toml"
+    config.write_text(e2e_traffic.config_toml(CHANNEL, state))
     filters = [{"can_id": codec.message(n).frame_id, "can_mask": 0x7FF, "extended": False}
                for n in GATEWAY_MESSAGES]
-    bus = open_bus(f"socketcan:{channel}", can_filters=filters)
-    grow_rcvbuf(bus.socket, 16 << 20)
-    return bus
+    with rmem_default(RCVBUF_DEFAULT_BYTES if IN_VM else None), \
+            open_bus(f"socketcan:{CHANNEL}", can_filters=filters) as reader:
+        grow_rcvbuf(reader.socket, 16 << 20)
+        data = e2e_traffic.data_dir()      # the VM's shared results: the log survives
+        gw = GatewayProcess(["run", "--config", str(config)],
+                            log_path=data / "gateway.log" if data else None)
+        try:
+            assert gw.wait_ready(READY_WAIT_S), gw.output()
+            note("gateway ready")
+            yield Gateway(gw, reader, codec)
+        finally:
+            status = gw.stop()
+        assert status == 0, gw.output()
 
 
-def _gateway(channel: str, state_dir: Path) -> GatewayProcess:
-    return GatewayProcess(["run", "--bus", f"socketcan:{channel}", "--state-dir",
-                           str(state_dir), "--particles", "64"])
+def _traffic_log(tmp_path: Path) -> Path:
+    return e2e_traffic.traffic_log(e2e_traffic.data_dir() or tmp_path)
 
 
-def _drain(bus: can.BusABC, codec: Codec) -> dict[str, list]:
-    out: dict[str, list] = {n: [] for n in GATEWAY_MESSAGES}
-    while (msg := bus.recv(timeout=0)) is not None:
-        frame = codec.decode_message(msg)
-        out[frame.message].append(frame)
-    return out
+def test_simulator_to_gateway_estimates_and_alerts(gateway, tmp_path):
+    log = _traffic_log(tmp_path)
+    played = e2e_traffic.play(log, CHANNEL, timeout_s=e2e_traffic.DURATION_S + WAIT_S)
+    assert played.returncode == 0, played.stderr[-3000:]
+    note(f"played {log.name}")
+    frames = gateway.frames
+    # The worker emits an estimate every 0.1 s of data time: wait for (nearly) the whole
+    # run to come back, which includes the alert the worn damper raises at 3.6-4.4 s.
+    expected = int(0.95 * e2e_traffic.DURATION_S * 10)
+    assert gateway.read_until(lambda: all(len(frames[n]) >= expected for n in ESTIMATES),
+                              RESULTS_WAIT_S), ({n: len(f) for n, f in frames.items()},
+                                                gateway.gw.output()[-3000:])
+    note(f"read back {({n: len(f) for n, f in frames.items()})}")
+    alerts = [f.values for f in frames["GW_Alert"]]
+    assert any(a["GW_Alert_Param"] == PARAM_CSY and a["GW_Alert_State"] == RAISED
+               and a["GW_Alert_Severity"] >= 1 and a["GW_Alert_ValueRel"] <= 0.75
+               for a in alerts), alerts
+    assert all(a["GW_Alert_Param"] == PARAM_CSY for a in alerts), alerts  # nominal: silent
+    # The estimates read back: Csy near the worn damper's, the others near nominal.
+    csy_truth = e2e_traffic.CSY_FACTOR * THETA_NOMINAL.csy_ns_per_m
+    csy = gateway.last("GW_EstCsy").values["GW_EstCsy_Mean"]
+    csay = gateway.last("GW_EstCsay").values["GW_EstCsay_Mean"]
+    lam = gateway.last("GW_EstConicity").values["GW_EstConicity_Mean"]
+    assert abs(csy / csy_truth - 1) < 0.3, csy
+    assert abs(csay / THETA_NOMINAL.csay_ns_per_m - 1) < 0.25, csay
+    assert abs(lam / THETA_NOMINAL.conicity - 1) < 0.25, lam
+    # Health: every frame taken, none rejected or dropped (kernel, queue, worker).
+    assert gateway.read_until(lambda: len(frames["GW_Health"]) > 0, WAIT_S)
+    health = gateway.last("GW_Health").values
+    assert health["GW_Health_FramesRejected"] == 0, health
+    assert health["GW_Health_FramesDropped"] == 0, (health, gateway.gw.output()[-3000:])
+    assert health["GW_Health_ActiveAlerts"] >= 1, health
+    # systemd's view: STATUS= shows the live estimates.
+    gw = gateway.gw
+    assert gw.wait_for_notification(lambda: gw.status.startswith("Csy")), gw.status
 
 
-def test_simulator_to_gateway_estimates_and_alerts(channel, codec, tmp_path):
-    with _gateway_frames_bus(channel, codec) as reader, _gateway(channel, tmp_path) as gw:
-        assert gw.wait_ready(3 * WAIT_S), gw.output()
-        sim = python_module("firmware_sim", "run", "--scenario", "lateral-failing",
-                            "--duration", "20", "--bus", f"socketcan:{channel}")
-        assert sim.returncode == 0, sim.stderr[-3000:]
-        assert gw.wait_for_notification(lambda: gw.status.startswith("Csy")), gw.output()
-        frames = _drain(reader, codec)
-        assert gw.stop() == 0, gw.output()
-    for name in ("GW_EstCsy", "GW_EstCsay", "GW_EstConicity", "GW_Health"):
-        assert frames[name], f"no {name} frame came back"
-    assert frames["GW_Alert"], "lateral-failing raised no alert frame"
+def test_bus_off_shows_in_health(gateway):
+    def bus_state_is(state: BusState) -> Callable[[], bool]:
+        n0 = len(gateway.frames["GW_Health"])
+        return lambda: any(f.values["GW_Health_BusState"] == state
+                           for f in gateway.frames["GW_Health"][n0:])
 
-
-def test_bus_off_shows_in_health(channel, codec, tmp_path):
-    with _gateway_frames_bus(channel, codec) as reader, _gateway(channel, tmp_path) as gw, \
-            RawCan(channel) as tx:
-        assert gw.wait_ready(3 * WAIT_S), gw.output()
+    with RawCan(CHANNEL) as tx:
         tx.send_error(CAN_ERR_BUSOFF)
-        seen_bus_off = False
-        while not seen_bus_off:
-            msg = reader.recv(timeout=WAIT_S)
-            assert msg is not None, "no GW_Health frame showed bus-off"
-            frame = codec.decode_message(msg)
-            seen_bus_off = (frame.message == "GW_Health"
-                            and frame.values["GW_Health_BusState"] == BusState.BUS_OFF)
-        assert gw.stop() == 0, gw.output()
+        assert gateway.read_until(bus_state_is(BusState.BUS_OFF), WAIT_S), \
+            gateway.frames["GW_Health"][-3:]
+        tx.send_error(CAN_ERR_RESTARTED)
+        assert gateway.read_until(bus_state_is(BusState.ERROR_ACTIVE), WAIT_S), \
+            gateway.frames["GW_Health"][-3:]

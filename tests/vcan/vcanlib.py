@@ -187,6 +187,22 @@ def kernel_filters(sock: socket.socket, max_filters: int = 64) -> list[tuple[int
     return [struct.unpack_from("=II", raw, i) for i in range(0, len(raw), 8)]
 
 
+@contextmanager
+def rmem_default(nbytes: int | None) -> Iterator[None]:
+    """Sockets created meanwhile get a ``nbytes`` receive buffer (net.core.rmem_default,
+    root; restored afterwards); None changes nothing."""
+    path = Path("/proc/sys/net/core/rmem_default")
+    if nbytes is None:
+        yield
+        return
+    old = path.read_text().strip()
+    path.write_text(str(nbytes))
+    try:
+        yield
+    finally:
+        path.write_text(old)
+
+
 def grow_rcvbuf(sock: socket.socket, nbytes: int) -> None:
     """Make the receive buffer ``nbytes`` (past net.core.rmem_max when root)."""
     try:
@@ -210,7 +226,8 @@ class GatewayProcess:
     ``stop()`` sends SIGTERM and returns the exit status. A context manager.
     """
 
-    def __init__(self, args: Sequence[str], *, env: dict[str, str] | None = None) -> None:
+    def __init__(self, args: Sequence[str], *, env: dict[str, str] | None = None,
+                 log_path: Path | None = None) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="rgw-notify-")
         path = os.path.join(self._dir.name, "notify")
         self._notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
@@ -218,7 +235,7 @@ class GatewayProcess:
         self.status = ""
         self.ready = False
         self.notifications: list[dict[str, str]] = []
-        self.log_path = Path(self._dir.name) / "gateway.log"
+        self.log_path = log_path or Path(self._dir.name) / "gateway.log"
         self._log = self.log_path.open("w")
         full_env = dict(os.environ, NOTIFY_SOCKET=path, **(env or {}))
         self.proc = subprocess.Popen([sys.executable, "-m", "gateway", *args], cwd=ROOT,

@@ -6,15 +6,20 @@ Under qemu's TCG a numba compilation takes minutes; on the host seconds. The run
 guest finds the compiled kernels (numba keys its cache on the CPU name and features;
 ``generic`` makes them equal on host and guest).
 
-A vcan test that needs another jitted path (the gateway service's estimator, say)
-adds a warm-up function to ``WARMUPS``: something short that runs that path once.
+A vcan test that needs another jitted path adds a warm-up function to ``WARMUPS``:
+something short that runs that path once. ``gateway_service`` also writes the gateway
+test's recorded traffic, which a Python simulator under TCG could not produce in time.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
+
+VCAN_TESTS = Path(__file__).resolve().parents[1] / "vcan"
 
 
 def simulator() -> None:
@@ -26,7 +31,17 @@ def simulator() -> None:
         pass
 
 
-WARMUPS: tuple[Callable[[], None], ...] = (simulator,)
+def gateway_service() -> None:
+    """The gateway test's traffic log (into ``RAILGW_VCAN_DATA``, which the guest reads)
+    and the estimator kernels its 64-particle worker runs (a replay of that log)."""
+    sys.path.insert(0, str(VCAN_TESTS))
+    import e2e_traffic
+
+    data = os.environ.get("RAILGW_VCAN_DATA")
+    e2e_traffic.warm(Path(data) if data else None)
+
+
+WARMUPS: tuple[Callable[[], None], ...] = (simulator, gateway_service)
 
 
 def main() -> int:

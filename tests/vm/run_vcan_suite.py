@@ -166,9 +166,11 @@ def guest_script(results: Path, cache: Path, python: str, loose: list[Path],
         # a generic CPU target gives host and guest (qemu -cpu max) the same cache key.
         "NUMBA_CACHE_DIR": str(cache / "numba"), "NUMBA_CPU_NAME": "generic",
         "RAILGW_VCAN_REQUIRED": "1", "RAILGW_IN_VM": "1",
+        "RAILGW_VCAN_DATA": str(results / "data"),
     }
-    if "CI" in os.environ:
-        env["CI"] = os.environ["CI"]
+    for name in ("CI", "RAILGW_VCAN_GATEWAY"):
+        if name in os.environ:
+            env[name] = os.environ[name]
     exports = "\n".join(f"export {k}={shlex.quote(v)}" for k, v in env.items())
     cmd = " ".join(shlex.quote(a) for a in pytest_cmd(python, results, extra, vm=True))
     return f"""#!/bin/bash
@@ -194,19 +196,22 @@ sync
 """
 
 
-def host_prepare(python: str, cache: Path) -> None:
-    """Work the guest would do slowly under TCG: byte-compile, warm the numba cache."""
+def host_prepare(python: str, cache: Path, data: Path) -> None:
+    """Work the guest would do slowly under TCG: byte-compile, warm the numba cache,
+    record the gateway test's traffic into ``data``."""
     t0 = time.monotonic()
     # The project's .pyc (PYTHONDONTWRITEBYTECODE may have kept them from being written).
     subprocess.run([python, "-m", "compileall", "-q", "-j", "0", "gateway", "firmware_sim",
                     "dbc", "tests"], cwd=ROOT, check=False, stdout=subprocess.DEVNULL)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache / "numba"), NUMBA_CPU_NAME="generic")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache / "numba"), NUMBA_CPU_NAME="generic",
+               RAILGW_VCAN_DATA=str(data))
     proc = subprocess.run([python, str(ROOT / "tests/vm/prewarm.py")], cwd=ROOT, env=env,
                           capture_output=True, text=True, check=False)
     if proc.returncode != 0:
-        print(f"warning: numba warm-up failed (the guest will compile):\n{proc.stderr[-2000:]}")
-    print(f"== vcan suite: host warm-up (pyc, numba cache) took {time.monotonic() - t0:.0f} s",
-          flush=True)
+        print(f"warning: host warm-up failed (the guest will compile and record):\n"
+              f"{proc.stderr[-2000:]}")
+    print(f"== vcan suite: host warm-up (pyc, numba cache, gateway traffic) took "
+          f"{time.monotonic() - t0:.0f} s", flush=True)
 
 
 def follow(path: Path, pos: int) -> int:
@@ -252,7 +257,7 @@ def run_in_vm(results: Path, timeout_s: float, extra: list[str], memory: str) ->
         else sys.executable
     print(f"== vcan suite: no {CHANNEL} here: booting kernel {kver} in qemu (TCG) with "
           f"virtme-ng; results in {results}", flush=True)
-    host_prepare(python, cache)
+    host_prepare(python, cache, results / "data")
     loose = loose_dirs(python)
     suite_timeout_s = max(60, int(timeout_s) - 90)
     script = results / "guest.sh"
@@ -319,6 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     results.mkdir(parents=True, exist_ok=True)
     for name in ("junit.xml", "status", "pytest.log", "guest.log", "times", "vng.log"):
         (results / name).unlink(missing_ok=True)
+    shutil.rmtree(results / "data", ignore_errors=True)   # recorded afresh each run
     if host_has_vcan() and not args.vm:
         return run_on_host(results, args.pytest_args)
     return run_in_vm(results, args.timeout_s, args.pytest_args, args.memory)

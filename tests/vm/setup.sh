@@ -6,7 +6,9 @@
 # module) under qemu's software emulation (TCG), with this machine's own filesystem
 # as the guest's root. This script, idempotent, installs:
 #   1. Debian packages: qemu-system-x86 (the VM), busybox-static (virtme-ng's
-#      initramfs), kmod (modprobe, depmod), iproute2 (ip link), file (kernel version);
+#      initramfs), kmod (modprobe, depmod), iproute2 (ip link), file (kernel version),
+#      can-utils (canplayer: plays the gateway test's recorded traffic into vcan0 at
+#      full rate, which a Python sender under TCG cannot);
 #   2. a Debian kernel image, the current dependency of linux-image-amd64, fetched with
 #      'apt-get download' and unpacked into the cache (NOT installed into /boot);
 #   3. virtme-ng (pinned) in its own venv in the cache.
@@ -52,6 +54,7 @@ command -v modprobe >/dev/null && command -v depmod >/dev/null \
   || [ -x /usr/sbin/depmod ] || [ -x /sbin/depmod ] || missing+=(kmod)
 command -v ip >/dev/null || [ -x /usr/sbin/ip ] || [ -x /sbin/ip ] || missing+=(iproute2)
 command -v file >/dev/null || missing+=(file)
+command -v canplayer >/dev/null || missing+=(can-utils)
 if [ ${#missing[@]} -gt 0 ]; then
   command -v apt-get >/dev/null || die "no apt-get: install ${missing[*]} yourself"
   apt_update_once
@@ -59,7 +62,7 @@ if [ ${#missing[@]} -gt 0 ]; then
   as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
     "${missing[@]}" >/dev/null
 else
-  say "Debian packages present (qemu-system-x86, busybox, kmod, iproute2, file)"
+  say "Debian packages present (qemu-system-x86, busybox, kmod, iproute2, file, can-utils)"
 fi
 DEPMOD=$(command -v depmod || echo /usr/sbin/depmod)
 
