@@ -24,6 +24,12 @@ class Notifier:
         if addr:
             self._address = ("\0" + addr[1:]) if addr.startswith("@") else addr
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+            # Never block the main loop: a unix datagram queue holds only
+            # net.unix.max_dgram_qlen (default 10) messages, and a reader that falls behind
+            # would otherwise stall the whole service inside sendto().
+            self._sock.setblocking(False)
+        self.dropped = 0
+        """Notifications not sent because the receiver's queue was full."""
         usec = os.environ.get("WATCHDOG_USEC", "")
         pid = os.environ.get("WATCHDOG_PID", "")
         self.watchdog_s: float | None = None
@@ -43,6 +49,11 @@ class Notifier:
         try:
             self._sock.sendto(payload, self._address)
             return True
+        except BlockingIOError:
+            self.dropped += 1
+            log.debug("sd_notify to %s: receiver's queue full, %d dropped", self._address,
+                      self.dropped)
+            return False
         except OSError as err:
             log.warning("sd_notify to %s failed: %s", self._address, err)
             return False

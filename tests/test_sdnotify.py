@@ -42,3 +42,26 @@ def test_silent_without_systemd(monkeypatch):
     monkeypatch.delenv("NOTIFY_SOCKET", raising=False)
     n = Notifier()
     assert not n.enabled and not n.ready() and not n.watchdog()
+
+
+def test_a_receiver_that_does_not_read_never_blocks_the_sender(tmp_path, monkeypatch):
+    """The datagram queue fills (net.unix.max_dgram_qlen); notify() then drops and counts
+    instead of stalling the service's main loop in sendto()."""
+    import threading
+
+    path = str(tmp_path / "notify")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(path)
+    monkeypatch.setenv("NOTIFY_SOCKET", path)
+    n = Notifier()
+    sent: list[bool] = []
+    t = threading.Thread(target=lambda: sent.extend(n.status(f"Csy {k}") for k in range(500)),
+                         daemon=True)
+    t.start()
+    t.join(timeout=10)
+    assert not t.is_alive(), "notify() blocked on a full receiver queue"
+    assert len(sent) == 500 and sent[0] and not all(sent)
+    assert n.dropped == sent.count(False) > 0
+    assert server.recv(256) == b"STATUS=Csy 0"                # what was queued is intact
+    n.close()
+    server.close()
