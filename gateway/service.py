@@ -213,7 +213,11 @@ class Service:
                     # Queue drained: the receive clock's "now" is as far as the receive thread
                     # has read. Not wall time: frames still waiting in the kernel are not
                     # missing, and a deadline passed on them would drop them as late.
-                    horizon = min(time.time(), self.source.stats.rx_horizon_s)
+                    # With the bus closed nothing waits in a kernel: wall time it is, so
+                    # sensor timeouts and gaps still show during an outage.
+                    src = self.source.stats
+                    horizon = min(time.time(), src.rx_horizon_s) if src.bus_open \
+                        else time.time()
                     if math.isfinite(horizon):
                         p.on_time(horizon)
                 p.poll()
