@@ -32,8 +32,8 @@ from gateway.identify.report import (
     write_json,
     write_track_report,
 )
-from gateway.identify.synthetic import SyntheticSpec, record
-from gateway.identify.track import random_track, read_track_csv, sine_track, write_track_csv
+from gateway.identify.synthetic import TRACK_KINDS, SyntheticSpec, demo_track, record
+from gateway.identify.track import read_track_csv, sine_track, write_track_csv
 from gateway.interchange import write_csv
 from gateway.model import AR_PAPER_DEFAULT, PARAM_NAMES
 
@@ -65,6 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    metavar="X0:X1", help="learn section as track positions in m (repeatable)")
     p.add_argument("--track-offset-m", type=float, default=0.0,
                    help="track position of the leading wheelset at the first sample [m]")
+    p.add_argument("--free-offset-m", type=float, metavar="HALF_WIDTH",
+                   help="identify the track offset too, within --track-offset-m +- HALF_WIDTH "
+                   "[m], instead of synchronising by cross-correlation")
     p.add_argument("--params", help="parameters to identify, e.g. Kx,f11,lambda "
                    "(default: Morris top-k on the track path; Csy,Csay,lambda otherwise)")
     p.add_argument("--top-k", type=int, default=5, help="parameters Morris selects")
@@ -92,8 +95,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--duration-s", type=float, default=40.0)
     s.add_argument("--fs-hz", type=float, default=200.0)
     s.add_argument("--speed-mps", type=float, default=42.5)
-    s.add_argument("--track-kind", choices=("random", "sines"), default="random")
-    s.add_argument("--track-rms-m", type=float, default=3e-3)
+    s.add_argument("--track-kind", choices=(*TRACK_KINDS, "sines"), default="random",
+                   help="random (IRIS band), jointed (25 m rails, cusp at each joint) or sines")
+    s.add_argument("--track-rms-m", type=float, default=3e-3,
+                   help="random: RMS; jointed: joint cusp (random part a third of it) [m]")
     s.add_argument("--offset-m", type=float, default=500.0)
     s.add_argument("--shift-samples", type=int, default=0)
     s.add_argument("--seed", type=int, default=0)
@@ -116,8 +121,8 @@ def run_synth(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(args.seed)
     length = args.offset_m + args.speed_mps * (args.duration_s + 5) + 100
-    if args.track_kind == "random":
-        track = random_track(length, 0.05, args.track_rms_m, rng)
+    if args.track_kind in TRACK_KINDS:
+        track = demo_track(args.track_kind, length, args.track_rms_m, rng)
     else:
         track = sine_track(length, 0.05, (40.0, 25.0, 12.5, 6.0),
                            tuple(args.track_rms_m * f for f in (1.0, 0.8, 0.5, 0.3)),
@@ -131,18 +136,26 @@ def run_synth(args: argparse.Namespace) -> int:
     signals = {s: ds.measured[:, i] for i, s in enumerate(ds.sensors)}
     signals["speed"] = ds.speed_mps
     write_csv(out / "data.csv", ds.t_s, signals)
-    (out / "truth.json").write_text(json.dumps(truth.as_dict(), indent=2) + "\n")
+    (out / "truth.json").write_text(json.dumps({**truth.as_dict(),
+                                                TRUTH_OFFSET_KEY: args.offset_m}, indent=2) + "\n")
     print(f"wrote {out / 'track.csv'}, {out / 'data.csv'}, {out / 'truth.json'} "
           f"(track offset {args.offset_m:g} m)")
     return 0
 
 
-def _truth(path: str | None) -> ParamPoint | None:
+TRUTH_OFFSET_KEY = "track_offset_m"
+"""The true track offset [m] in truth.json, next to the parameters (optional)."""
+
+
+def _truth(path: str | None) -> tuple[ParamPoint | None, float | None]:
+    """The true parameters and, when recorded, the true track offset [m]."""
     if path is None:
-        return None
+        return None, None
     try:
-        return ParamPoint.from_dict(json.loads(Path(path).read_text()))
-    except (OSError, ValueError) as err:
+        values = json.loads(Path(path).read_text())
+        offset_m = values.pop(TRUTH_OFFSET_KEY, None)
+        return ParamPoint.from_dict(values), None if offset_m is None else float(offset_m)
+    except (OSError, ValueError, TypeError, AttributeError) as err:
         raise InputError(f"expected a truth JSON of all {len(ALL_NAMES)} parameters, got "
                          f"{path}: {err}") from err
 
@@ -152,12 +165,14 @@ def run_identify(args: argparse.Namespace) -> int:
     gateway_cfg = load_config(args.config) if args.config else None
     ds = load_dataset(args.data, sensors, args.speed_mps, gateway_cfg)
     params = resolve_names(args.params.split(",")) if args.params else None
-    truth = _truth(args.truth)
+    truth, truth_offset_m = _truth(args.truth)
     sections = [Section(a, b) for a, b in args.section]
     out = Path(args.out)
     if args.track is None:
         if args.section_m:
             raise InputError("expected --section (seconds) without a track, got --section-m")
+        if args.free_offset_m is not None:
+            raise InputError("expected --track with --free-offset-m, got no track")
         ident = PredictionErrorIdentifier(sections or None, params or PARAM_NAMES,
                                           args.tolerance or 0.75, args.ar_paper)
         ml = ident.fit(ds)
@@ -184,10 +199,13 @@ def run_identify(args: argparse.Namespace) -> int:
         top_k=args.top_k, morris_trajectories=args.morris_trajectories, methods=methods,
         budget=Budget(de_maxiter=args.de_maxiter, da_maxfun=args.da_maxfun,
                       local_maxfev=args.local_maxfev, seed=args.seed),
-        max_lag_s=args.max_lag_s, workers=args.workers)
+        max_lag_s=args.max_lag_s, workers=args.workers, free_offset_m=args.free_offset_m)
     res = TrackIdentifier(track, sections, config).fit(ds)
-    files = write_track_report(res, out, truth)
+    files = write_track_report(res, out, truth, truth_offset_m)
     print(f"identified {', '.join(res.space.names)}; nominal J {res.j_nominal:.4g}")
+    if res.space.offset is not None:
+        print(f"track offset {res.offset_m():.3f} m (given {res.space.offset.base_m:g} "
+              f"+- {res.space.offset.half_width_m:g} m, best method {res.best.method})")
     print(f"{'method':<40} {'reduction %':>12} {'final %':>9} {'evals':>7}")
     for row in table1(res):
         print(f"{row['method']:<40} {row['reduction_pct']:12.2f} {row['final_pct']:9.3f} "

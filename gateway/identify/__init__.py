@@ -2,7 +2,8 @@
 
 One job per module:
 
-- ``params``: the 25 model parameters by name, nominal values, the relative box;
+- ``params``: the 25 model parameters by name, nominal values, the relative box and
+  the optional free track offset;
 - ``track``: the known track alignment (CSV, generators, lookup under each wheelset);
 - ``simulate``: the deterministic forced response to that track;
 - ``data``: a recorded source turned into a checked Dataset (the source seam);

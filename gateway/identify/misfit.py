@@ -165,13 +165,26 @@ class TrackMisfit:
             x = self.dataset.position_m(np.array([t0, t1]), self.offset_m)
             self.track.at(np.array([x[0] - behind_m, x[1]]))
 
-    def with_lags(self, lags_s: tuple[float, ...]) -> TrackMisfit:
-        """The same misfit with new synchronisation shifts."""
+    def _copy(self, **changes: object) -> TrackMisfit:
         new = object.__new__(TrackMisfit)
         new.__dict__.update(self.__dict__)
-        new.lags_s = tuple(float(v) for v in lags_s)
+        new.__dict__.update(changes)
         new._check_track()
         return new
+
+    def with_lags(self, lags_s: tuple[float, ...]) -> TrackMisfit:
+        """The same misfit with new synchronisation shifts."""
+        if len(lags_s) != len(self.sections):
+            raise InputError(f"expected one lag per section ({len(self.sections)}), got "
+                             f"{len(lags_s)}")
+        return self._copy(lags_s=tuple(float(v) for v in lags_s))
+
+    def at_offset(self, offset_m: float) -> TrackMisfit:
+        """The same misfit with the track registered at ``offset_m`` [m] instead.
+
+        Cheap (no filtering is redone), so an optimiser may call it at every evaluation.
+        """
+        return self._copy(offset_m=float(offset_m))
 
     def simulate(self, point: ParamPoint, t_start_s: float, n: int, dt_s: float,
                  lag_s: float) -> np.ndarray:

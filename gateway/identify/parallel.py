@@ -1,7 +1,8 @@
 """Evaluate an objective over many parameter vectors on all available cores.
 
-The objective (a picklable callable of a relative vector ``u``) is sent to each worker
-process once, at start-up; afterwards only the vectors travel. ``workers`` defaults
+The objective (a picklable callable of a relative vector ``u``, with the track offset
+as its last entry when that is free) is sent to each worker process once, at start-up;
+afterwards only the vectors travel. ``workers`` defaults
 to ``len(os.sched_getaffinity(0))``; with one worker everything runs in-process.
 """
 
@@ -14,6 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from gateway.errors import InputError
 from gateway.identify.misfit import TrackMisfit
 from gateway.identify.params import FreeSpace
 
@@ -25,20 +27,39 @@ class Misfit(Protocol):
 
 
 class Objective:
-    """``u (k,) -> J``: the misfit at ``space.point(u)``; ``per_signal`` for screening."""
+    """``u (size,) -> J``: the misfit at ``space.point(u)``; ``per_signal`` for screening.
+
+    With a free offset (``space.offset``) the misfit must be a :class:`TrackMisfit`,
+    evaluated with the track registered at ``space.offset_m(u)``; the track must cover
+    the sections over the whole offset range, which is checked here, once.
+    """
 
     def __init__(self, misfit: Misfit, space: FreeSpace) -> None:
         self.misfit = misfit
         self.space = space
+        if space.offset is not None:
+            if not isinstance(misfit, TrackMisfit):
+                raise InputError(f"expected a known-track misfit for a free track offset, got "
+                                 f"{type(misfit).__name__}")
+            for v in (-1.0, 1.0):
+                misfit.at_offset(space.offset.offset_m(v))
+
+    def _misfit_at(self, u: np.ndarray) -> Misfit:
+        offset_m = self.space.offset_m(u)
+        if offset_m is None:
+            return self.misfit
+        assert isinstance(self.misfit, TrackMisfit)
+        return self.misfit.at_offset(offset_m)
 
     def __call__(self, u: np.ndarray) -> float:
-        return float(self.misfit(self.space.point(u)))
+        return float(self._misfit_at(u)(self.space.point(u)))
 
     def per_signal(self, u: np.ndarray) -> np.ndarray:
         """Per-signal misfits (ny,); only for a :class:`TrackMisfit`."""
-        if not isinstance(self.misfit, TrackMisfit):
+        misfit = self._misfit_at(u)
+        if not isinstance(misfit, TrackMisfit):
             raise TypeError("per-signal misfits need a TrackMisfit")
-        return self.misfit.per_signal(self.space.point(u))
+        return misfit.per_signal(self.space.point(u))
 
 
 _OBJECTIVE: Objective | None = None

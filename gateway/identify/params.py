@@ -4,11 +4,13 @@ A *parameter point* is the full set of 25 model parameters (the 22 fields of
 :class:`gateway.model.VehicleParams` plus the monitored ``theta`` = Csy, Csay, conicity),
 all in SI units and named as in the model (``ksy_n_per_m``, ``csy_ns_per_m``...).
 Optimisers work on a short vector of *free* parameters in relative units:
-``value = nominal * (1 + u)`` with ``u`` in ``[-tolerance, +tolerance]``.
+``value = nominal * (1 + u)`` with ``u`` in ``[-tolerance, +tolerance]``, optionally
+followed by one more entry for the track position offset (:class:`OffsetRange`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
@@ -103,16 +105,44 @@ class ParamPoint:
 
 
 @dataclass(frozen=True)
+class OffsetRange:
+    """The track position offset as a free dimension: ``base_m + half_width_m * v``.
+
+    ``base_m`` (m) is the given registration (odometry), ``half_width_m`` (m) the
+    uncertainty either side; the optimiser's coordinate ``v`` lies in [-1, 1].
+    """
+
+    base_m: float
+    half_width_m: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.base_m) and math.isfinite(self.half_width_m)
+                and self.half_width_m > 0):
+            raise InputError(f"expected a finite offset and a positive half-width in m, got "
+                             f"{self.base_m} and {self.half_width_m}")
+
+    def offset_m(self, v: float) -> float:
+        """The offset [m] at coordinate ``v``."""
+        return self.base_m + self.half_width_m * float(v)
+
+    def coordinate(self, offset_m: float) -> float:
+        """The coordinate ``v`` of ``offset_m`` [m]."""
+        return (float(offset_m) - self.base_m) / self.half_width_m
+
+
+@dataclass(frozen=True)
 class FreeSpace:
     """The free parameters of a fit and their box: ``value = base * (1 + u)``.
 
     ``names`` (k,) full names; ``tolerance`` (k,) relative half-widths of the box.
-    Parameters not named stay at ``base``.
+    Parameters not named stay at ``base``. With ``offset``, the optimiser's vector has
+    one more entry, last, the track-offset coordinate of :class:`OffsetRange`.
     """
 
     names: tuple[str, ...]
     tolerance: tuple[float, ...]
     base: ParamPoint
+    offset: OffsetRange | None = None
 
     def __post_init__(self) -> None:
         if len(self.names) != len(self.tolerance) or not self.names:
@@ -124,24 +154,45 @@ class FreeSpace:
 
     @classmethod
     def uniform(cls, names: tuple[str, ...], tolerance: float,
-                base: ParamPoint | None = None) -> FreeSpace:
-        return cls(tuple(names), (float(tolerance),) * len(names), base or ParamPoint.nominal())
+                base: ParamPoint | None = None, offset: OffsetRange | None = None) -> FreeSpace:
+        return cls(tuple(names), (float(tolerance),) * len(names), base or ParamPoint.nominal(),
+                   offset)
+
+    @property
+    def size(self) -> int:
+        """Length of the optimiser's vector: k, plus one with a free offset."""
+        return len(self.names) + (self.offset is not None)
 
     @property
     def bounds(self) -> list[tuple[float, float]]:
-        """Box of the relative vector u, one (low, high) per name."""
-        return [(-t, t) for t in self.tolerance]
+        """Box of the optimiser's vector: one (low, high) per name, then (-1, 1) for the offset."""
+        box = [(-t, t) for t in self.tolerance]
+        return box + [(-1.0, 1.0)] if self.offset is not None else box
+
+    def _vector(self, u: np.ndarray) -> np.ndarray:
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.shape != (self.size,):
+            raise InputError(f"expected {self.size} free coordinates, got {u.shape}")
+        return u
 
     def point(self, u: np.ndarray) -> ParamPoint:
-        """The full parameter point for relative offsets ``u`` (k,)."""
-        u = np.asarray(u, dtype=float).reshape(-1)
-        if u.shape != (len(self.names),):
-            raise InputError(f"expected {len(self.names)} relative offsets, got {u.shape}")
+        """The full parameter point for the optimiser's vector ``u`` (size,)."""
+        u = self._vector(u)
         d = self.base.as_dict()
         return self.base.with_values(**{n: d[n] * (1.0 + float(x))
-                                        for n, x in zip(self.names, u, strict=True)})
+                                        for n, x in zip(self.names, u, strict=False)})
 
-    def relative(self, point: ParamPoint) -> np.ndarray:
-        """The relative offsets (k,) of ``point`` from ``base``."""
+    def offset_m(self, u: np.ndarray) -> float | None:
+        """The track offset [m] at ``u`` (size,), or None when the offset is not free."""
+        u = self._vector(u)
+        return None if self.offset is None else self.offset.offset_m(u[-1])
+
+    def relative(self, point: ParamPoint, offset_m: float | None = None) -> np.ndarray:
+        """The optimiser's vector (size,) of ``point`` and, with a free offset, ``offset_m``."""
         d, b = point.as_dict(), self.base.as_dict()
-        return np.array([d[n] / b[n] - 1.0 for n in self.names])
+        u = [d[n] / b[n] - 1.0 for n in self.names]
+        if self.offset is not None:
+            if offset_m is None:
+                raise InputError("expected a track offset in m for the free offset, got None")
+            u.append(self.offset.coordinate(offset_m))
+        return np.array(u)

@@ -2,7 +2,9 @@
 
 - :class:`TrackIdentifier` (known track): synchronise each learn section, screen all
   parameters with Morris, pick the ones to identify, then run every requested
-  optimiser on the time-domain misfit and compare them (Kraft's Table 1).
+  optimiser on the time-domain misfit and compare them (Kraft's Table 1). With a free
+  track offset the offset is one more dimension of the optimisation instead of the
+  synchronisation.
 - :class:`PredictionErrorIdentifier` (no track): maximum likelihood of Csy, Csay and
   lambda (by default) through the Kalman prediction-error misfit.
 """
@@ -20,7 +22,7 @@ from gateway.identify.data import Dataset
 from gateway.identify.misfit import MisfitConfig, Section, TrackMisfit
 from gateway.identify.optimise import Budget, MethodResult, run_method
 from gateway.identify.parallel import Evaluator, Objective
-from gateway.identify.params import ALL_NAMES, FreeSpace, ParamPoint
+from gateway.identify.params import ALL_NAMES, FreeSpace, OffsetRange, ParamPoint
 from gateway.identify.prediction_error import PredictionErrorMisfit, standard_errors
 from gateway.identify.screening import MorrisResult, morris, select
 from gateway.identify.sync import LagEstimate
@@ -35,7 +37,10 @@ class TrackConfig:
     """Settings of the known-track identification.
 
     ``params`` None means "choose with Morris": the ``top_k`` best-ranked non-geometry
-    parameters. ``max_lag_s`` 0 disables synchronisation.
+    parameters. ``max_lag_s`` 0 disables synchronisation. ``free_offset_m`` (m) makes
+    the track offset a free dimension, ``offset_m +- free_offset_m``; the
+    synchronisation is then not run (at constant speed lag and offset are the same
+    degree of freedom), only the check of the lag at the identified point.
     """
 
     misfit: MisfitConfig = field(default_factory=MisfitConfig)
@@ -48,6 +53,7 @@ class TrackConfig:
     budget: Budget = field(default_factory=Budget)
     max_lag_s: float = 1.0
     workers: int | None = None
+    free_offset_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -71,13 +77,19 @@ class TrackResult:
     def point(self, method: MethodResult | None = None) -> ParamPoint:
         return self.space.point(np.array((method or self.best).u))
 
+    def offset_m(self, method: MethodResult | None = None) -> float:
+        """The track offset [m] of ``method`` (default the best): identified or as given."""
+        offset_m = self.space.offset_m(np.array((method or self.best).u))
+        return self.misfit.offset_m if offset_m is None else offset_m
 
-def _eval_rate(objective: Objective, k: int, n: int = 20) -> float:
+
+def _eval_rate(objective: Objective, n: int = 20) -> float:
     """Misfit evaluations per second on one core, measured at nominal."""
-    objective(np.zeros(k))                   # warm-up (JIT, caches)
+    u = np.zeros(objective.space.size)
+    objective(u)                              # warm-up (JIT, caches)
     t0 = time.perf_counter()
     for _ in range(n):
-        objective(np.zeros(k))
+        objective(u)
     return n / (time.perf_counter() - t0)
 
 
@@ -93,7 +105,7 @@ class TrackIdentifier:
         nominal = ParamPoint.nominal()
         misfit = TrackMisfit(dataset, self.track, self.sections, c.misfit, c.offset_m)
         lags: tuple[LagEstimate, ...] = ()
-        if c.max_lag_s > 0:
+        if c.max_lag_s > 0 and c.free_offset_m is None:
             lags = tuple(misfit.synchronise(nominal, c.max_lag_s))
             misfit = misfit.with_lags(tuple(e.lag_samples / dataset.fs_hz for e in lags))
             log.info("synchronised: lags %s samples", [e.lag_samples for e in lags])
@@ -106,25 +118,29 @@ class TrackIdentifier:
             log.info("Morris selected %s", names)
         else:
             names = c.params
-        space = FreeSpace.uniform(names, c.tolerance)
+        offset = None if c.free_offset_m is None else OffsetRange(c.offset_m, c.free_offset_m)
+        space = FreeSpace.uniform(names, c.tolerance, offset=offset)
         objective = Objective(misfit, space)
-        rate = _eval_rate(objective, len(names))
-        j0 = objective(np.zeros(len(names)))
+        rate = _eval_rate(objective)
+        j0 = objective(np.zeros(space.size))
         results = []
         with Evaluator(objective, c.workers) as ev:
             for m in c.methods:
                 results.append(run_method(m, objective, ev, c.budget, j0))
                 log.info("%s: J %.5f -> %.5f in %d evaluations", m, j0, results[-1].j_final,
                          results[-1].n_evals)
-        best = min(results, key=lambda r: r.j_final)
+        best = np.array(min(results, key=lambda r: r.j_final).u)
         after: tuple[LagEstimate, ...] = ()
         if c.max_lag_s > 0:
-            after = tuple(misfit.with_lags((0.0,) * len(self.sections)).synchronise(
-                space.point(np.array(best.u)), c.max_lag_s))
-            if [e.lag_samples for e in after] != [e.lag_samples for e in lags]:
-                log.warning("the lags at the identified point %s differ from those at nominal "
-                            "%s; consider re-running with them", [e.lag_samples for e in after],
-                            [e.lag_samples for e in lags])
+            best_offset_m = space.offset_m(best)
+            at = misfit if best_offset_m is None else misfit.at_offset(best_offset_m)
+            after = tuple(at.with_lags((0.0,) * len(self.sections)).synchronise(
+                space.point(best), c.max_lag_s))
+            before = [e.lag_samples for e in lags] or [0] * len(after)
+            if [e.lag_samples for e in after] != before:
+                log.warning("the lags at the identified point %s differ from those used %s; "
+                            "consider re-running with them", [e.lag_samples for e in after],
+                            before)
         return TrackResult(space=space, j_nominal=j0, lags=lags, lags_after=after,
                            morris=screening, methods=tuple(results),
                            evals_per_s_one_core=rate, wall_s=time.perf_counter() - t_start,
@@ -169,7 +185,7 @@ class PredictionErrorIdentifier:
         space = FreeSpace.uniform(self.params, self.tolerance)
         objective = Objective(misfit, space)
         k = len(self.params)
-        rate = _eval_rate(objective, k, n=5)
+        rate = _eval_rate(objective, n=5)
         nll0 = objective(np.zeros(k))
         count = [0]
 

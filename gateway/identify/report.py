@@ -38,8 +38,27 @@ def table1(result: TrackResult) -> list[dict[str, Any]]:
             for m in result.methods]
 
 
-def track_report(result: TrackResult, truth: ParamPoint | None = None) -> dict[str, Any]:
-    """The JSON document of a known-track identification."""
+def _free_offset(result: TrackResult, truth_offset_m: float | None) -> dict[str, Any]:
+    """The identified track offset per method, in m, against the given one (and the truth)."""
+    assert result.space.offset is not None
+    doc: dict[str, Any] = {"given_m": result.space.offset.base_m,
+                           "half_width_m": result.space.offset.half_width_m,
+                           "identified_m": {m.method: _round(result.offset_m(m), 9)
+                                            for m in result.methods}}
+    if truth_offset_m is not None:
+        doc["truth_m"] = truth_offset_m
+        doc["error_vs_truth_m"] = {m.method: _round(result.offset_m(m) - truth_offset_m, 6)
+                                   for m in result.methods}
+    return doc
+
+
+def track_report(result: TrackResult, truth: ParamPoint | None = None,
+                 truth_offset_m: float | None = None) -> dict[str, Any]:
+    """The JSON document of a known-track identification.
+
+    ``truth_offset_m`` (m), the true track offset of a synthetic run, is reported against
+    the identified one when the offset was free.
+    """
     nominal = result.space.base.as_dict()
     methods = {}
     for m in result.methods:
@@ -68,6 +87,8 @@ def track_report(result: TrackResult, truth: ParamPoint | None = None) -> dict[s
         "speed": {"evaluations_per_s_one_core": _round(result.evals_per_s_one_core, 4),
                   "wall_s": _round(result.wall_s, 4)},
     }
+    if result.space.offset is not None:
+        doc["free_track_offset"] = _free_offset(result, truth_offset_m)
     if truth is not None:
         doc["truth"] = {n: _round(truth.as_dict()[n]) for n in result.space.names}
     if result.morris is not None:
@@ -124,7 +145,7 @@ def plot_morris(morris: MorrisResult, path: Path) -> None:
 
 
 def plot_signals(result: TrackResult, path: Path, window_s: float = 5.0) -> None:
-    mf = result.misfit
+    mf = result.misfit.at_offset(result.offset_m())       # the identified registration
     nominal = mf.section_response(result.space.base, 0)
     fitted = mf.section_response(result.point(), 0)
     meas = mf.meas_sections[0]
@@ -153,9 +174,10 @@ def plot_parameters(result: TrackResult, path: Path, truth: ParamPoint | None) -
     width = 0.8 / (len(result.methods) + (truth is not None))
     fig, ax = plt.subplots(figsize=(max(6, 1.4 * len(names)), 4))
     for k, m in enumerate(result.methods):
-        ax.bar(x + k * width, 100 * np.array(m.u), width, label=m.method)
+        ax.bar(x + k * width, 100 * np.array(m.u)[:len(names)], width, label=m.method)
     if truth is not None:
-        ax.bar(x + len(result.methods) * width, 100 * result.space.relative(truth), width,
+        ax.bar(x + len(result.methods) * width,
+               100 * result.space.relative(truth, result.misfit.offset_m)[:len(names)], width,
                label="truth", color="k")
     ax.set_xticks(x + 0.4 - width / 2, [SHORT_NAMES[n] for n in names])
     ax.set_ylabel("change from nominal [%]")
@@ -182,8 +204,8 @@ def plot_convergence(result: TrackResult, path: Path) -> None:
     plt.close(fig)
 
 
-def write_track_report(result: TrackResult, out_dir: Path,
-                       truth: ParamPoint | None = None) -> list[Path]:
+def write_track_report(result: TrackResult, out_dir: Path, truth: ParamPoint | None = None,
+                       truth_offset_m: float | None = None) -> list[Path]:
     """Write report.json and the figures into ``out_dir``; returns the files written."""
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -192,7 +214,7 @@ def write_track_report(result: TrackResult, out_dir: Path,
                          f"{err.strerror}") from err
     files = [out_dir / "report.json", out_dir / "signals.png", out_dir / "parameters.png",
              out_dir / "convergence.png"]
-    write_json(files[0], track_report(result, truth))
+    write_json(files[0], track_report(result, truth, truth_offset_m))
     plot_signals(result, files[1])
     plot_parameters(result, files[2], truth)
     plot_convergence(result, files[3])

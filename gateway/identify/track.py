@@ -105,6 +105,31 @@ def sine_track(length_m: float, dx_m: float, wavelengths_m: tuple[float, ...],
     return Track(x, y, "sine track")
 
 
+def jointed_track(length_m: float, dx_m: float, rng: np.random.Generator,
+                  rail_m: float = 25.0, cusp_m: float = 3e-3, decay_m: float = 1.0,
+                  random_rms_m: float = 0.5e-3, first_joint_m: float = 0.0) -> Track:
+    """Jointed rails: a lateral cusp at every joint plus a small random alignment.
+
+    Joints lie at ``first_joint_m + i * rail_m`` (m). Each adds
+    ``cusp_m * exp(-|x - x_joint| / decay_m)`` (m; ``decay_m`` the 1/e half-width, m),
+    so the alignment repeats with the rail length; on top sits a random alignment of
+    ``random_rms_m`` (m RMS) from :func:`random_track`, which makes each rail differ a
+    little, as a real line does. ``random_rms_m`` 0 gives a purely periodic track.
+    """
+    if not (length_m > 0 and dx_m > 0 and rail_m > 0 and decay_m > 0 and cusp_m >= 0
+            and random_rms_m >= 0):
+        raise InputError(f"expected positive length, spacing, rail length and decay and "
+                         f"non-negative cusp and rms, got {length_m}, {dx_m}, {rail_m}, "
+                         f"{decay_m}, {cusp_m}, {random_rms_m}")
+    x = np.arange(int(math.ceil(length_m / dx_m)) + 1) * dx_m
+    phase = np.mod(x - first_joint_m, rail_m)              # distance past the last joint
+    distance = np.minimum(phase, rail_m - phase)           # to the nearest joint
+    y = cusp_m * np.exp(-distance / decay_m)
+    if random_rms_m > 0:
+        y = y + random_track(length_m, dx_m, random_rms_m, rng).alignment_m[:len(x)]
+    return Track(x, y, f"jointed track ({rail_m:g} m rails)")
+
+
 def read_track_csv(path: str | Path) -> Track:
     """Read a track CSV (``position_m``, ``lateral_alignment_m``); line-precise errors."""
     p = str(path)
