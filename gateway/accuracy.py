@@ -77,7 +77,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--particles", type=int, default=1000)
     ap.add_argument("--fault-at", type=float, default=10.0)
-    ap.add_argument("--floor-reference", choices=("nominal", "value"), default="nominal")
+    ap.add_argument("--floor-reference", choices=("nominal", "value"),
+                    default=RBPFConfig.floor_reference)
+    ap.add_argument("--ess-threshold", type=float, default=RBPFConfig.ess_threshold,
+                    help="resample when ESS < this x m (default: the estimator's)")
     ap.add_argument("--walk", type=float, default=None,
                     help="random-walk rate of every parameter, relative per sqrt(s) "
                          "(default: the estimator's)")
@@ -86,7 +89,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for seed in args.seeds:
         for ns in args.sensors:
             base: dict[str, Any] = dict(fs_hz=FS_HZ, n_particles=args.particles, sensors=ns,
-                                        seed=seed, floor_reference=args.floor_reference)
+                                        seed=seed, floor_reference=args.floor_reference,
+                                        ess_threshold=args.ess_threshold)
             if args.walk is not None:
                 base["walk_rel_per_sqrt_s"] = (args.walk,) * 3
             if args.what == "nominal":

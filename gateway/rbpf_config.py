@@ -29,6 +29,9 @@ class RBPFConfig:
     ``support_*``: hard bounds particles may never leave (log-space clip);
     ``reseed_*``: log-uniform box for particles re-drawn after a detected change;
     ``ar_prior``: log-uniform factor range on Ar when ``estimate_ar``;
+    ``ess_threshold``: resample when the effective sample size falls below this
+    fraction of m (0.2: each resample-move is an approximation, and at 0.5 the fast
+    start-up contraction made ~3x as many; docs/estimator.md "Start-up lock-in");
     ``floor_rel``/``floor_reference``: roughening-std floor, a fraction of the nominal
     value (default) or of the parameter's own value;
     ``walk_rel_per_sqrt_s``: random-walk evolution of each parameter, relative std per
@@ -43,7 +46,7 @@ class RBPFConfig:
     fs_hz: float
     n_particles: int = 1000
     delta: float = 0.99
-    ess_threshold: float = 0.5
+    ess_threshold: float = 0.2
     sensors: int = 3
     ar_paper: float = AR_PAPER_DEFAULT
     estimate_ar: bool = False
