@@ -2,7 +2,8 @@
 
 Written here rather than taken from a library: the protocol is one ``sendto`` of
 ``KEY=VALUE`` lines to a unix datagram socket (an abstract one when the path starts
-with ``@``). READY, STATUS, WATCHDOG, STOPPING and RELOADING are what the service uses.
+with ``@``). READY, STATUS, WATCHDOG, EXTEND_TIMEOUT_USEC, STOPPING and RELOADING are
+what the service uses.
 """
 
 from __future__ import annotations
@@ -69,6 +70,14 @@ class Notifier:
     def watchdog(self) -> bool:
         """WATCHDOG=1: only call while the pipeline makes progress."""
         return self.notify(WATCHDOG=1)
+
+    def extend_timeout(self, seconds: float, status: str = "") -> bool:
+        """EXTEND_TIMEOUT_USEC: the current state's time-out now ends ``seconds`` from now
+        at the earliest (systemd >= 236; older ones ignore it), with an optional STATUS."""
+        usec = max(0, int(seconds * 1e6))
+        if status:
+            return self.notify(EXTEND_TIMEOUT_USEC=usec, STATUS=status)
+        return self.notify(EXTEND_TIMEOUT_USEC=usec)
 
     def stopping(self) -> bool:
         return self.notify(STOPPING=1)

@@ -2,8 +2,10 @@
 
 ``Service.run()`` is the daemon's main loop. SIGTERM/SIGINT stop it cleanly (final
 checkpoint, state flushed) and SIGHUP reloads the alert thresholds from the config
-file. READY=1 is sent once the bus is open and the worker runs; WATCHDOG=1 only while
-the pipeline makes progress; STATUS= shows the live estimates.
+file. READY=1 is sent once the bus is open and the worker runs; until the worker is up
+(its first start compiles the numba kernels, minutes on a cold cache) the start time-out
+is extended by EXTEND_TIMEOUT_USEC, for at most ``STARTUP_EXTEND_LIMIT_S``. WATCHDOG=1
+only while the pipeline makes progress; STATUS= shows the live estimates.
 """
 
 from __future__ import annotations
@@ -38,6 +40,13 @@ log = logging.getLogger(__name__)
 FRAME_BITS = frame_bits_worst_case(8)
 PROGRESS_TIMEOUT_S = 5.0
 """The worker must have advanced within this long (while work is queued) to feed the watchdog."""
+STARTUP_EXTEND_EVERY_S = 5.0
+STARTUP_EXTEND_S = 30.0
+"""While the worker warms up, every STARTUP_EXTEND_EVERY_S the start time-out is extended
+to STARTUP_EXTEND_S from then (systemd applies it only beyond TimeoutStartSec)."""
+STARTUP_EXTEND_LIMIT_S = 900.0
+"""No extension after this long: a worker not up by then is broken, and systemd's
+time-out and Restart= take over."""
 
 
 def status_line(est: Estimate | None, active_alerts: int, bus_state: str, rtf: float) -> str:
@@ -194,7 +203,7 @@ class Service:
             if self.console is not None:
                 self.console.start()
         ready = False
-        next_health = next_status = next_publish = time.monotonic()
+        next_health = next_status = next_publish = started = next_extend = time.monotonic()
         last_done = [-2.0, time.monotonic()]
         p = self.pipeline
         try:
@@ -203,6 +212,12 @@ class Service:
                     ready = True
                     self.notifier.ready("pipeline up: bus open, estimator running")
                     log.info("pipeline up")
+                elif not ready and not p.worker.stats.ready and \
+                        started + STARTUP_EXTEND_LIMIT_S > time.monotonic() >= next_extend:
+                    next_extend = time.monotonic() + STARTUP_EXTEND_EVERY_S
+                    self.notifier.extend_timeout(STARTUP_EXTEND_S, "starting: estimator "
+                                                 "warming up (a first start compiles its "
+                                                 "kernels: minutes)")
                 msg = self.source.get(0.01)
                 n = 0
                 while msg is not None and n < 2000:

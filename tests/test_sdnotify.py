@@ -4,15 +4,24 @@ from __future__ import annotations
 
 import socket
 
+import pytest
+
 from gateway.sdnotify import Notifier
 
 
-def test_messages_reach_the_socket(tmp_path, monkeypatch):
+@pytest.fixture
+def server(tmp_path, monkeypatch):
+    """A bound notify socket (2 s receive time-out) named in NOTIFY_SOCKET."""
     path = str(tmp_path / "notify")
-    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    server.bind(path)
-    server.settimeout(2)
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(2)
     monkeypatch.setenv("NOTIFY_SOCKET", path)
+    yield sock
+    sock.close()
+
+
+def test_messages_reach_the_socket(server, monkeypatch):
     monkeypatch.setenv("WATCHDOG_USEC", "10000000")
     n = Notifier()
     assert n.enabled and n.watchdog_s == 10.0
@@ -24,7 +33,14 @@ def test_messages_reach_the_socket(tmp_path, monkeypatch):
     assert server.recv(256) == b"STATUS=Csy 40.1 kNs/m second line"
     n.close()
     n.close()
-    server.close()
+
+
+def test_extend_timeout_is_in_microseconds(server):
+    n = Notifier()
+    assert n.extend_timeout(30.0, "warming up")
+    assert server.recv(256) == b"EXTEND_TIMEOUT_USEC=30000000\nSTATUS=warming up"
+    assert n.extend_timeout(0.5)
+    assert server.recv(256) == b"EXTEND_TIMEOUT_USEC=500000"
 
 
 def test_abstract_socket(monkeypatch):

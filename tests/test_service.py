@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -111,6 +112,33 @@ def test_frames_come_back_with_e2e_and_health(tmp_path):
     assert len(health) >= 3
     assert health[-1]["GW_Health_FramesRx"] > 0
     assert {v["GW_Health_BusState"] for v in health} == {0}
+
+
+def test_start_time_out_is_extended_until_the_worker_is_up(tmp_path, monkeypatch):
+    """A cold numba cache makes the worker's first start take minutes, longer than the
+    unit's TimeoutStartSec: the service extends the start time-out until READY=1."""
+    path = str(tmp_path / "notify")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(path)
+    server.settimeout(120)
+    monkeypatch.setenv("NOTIFY_SOCKET", path)
+    got: list[dict[str, str]] = []
+
+    def read() -> None:                 # at once: the datagram queue holds only ~10
+        while not any(m.get("READY") == "1" for m in got):
+            text = server.recv(4096).decode()
+            got.append(dict(line.split("=", 1) for line in text.splitlines()))
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    with Running(tmp_path, "extend"):
+        reader.join(timeout=120)
+    server.close()
+    first_ready = next(k for k, m in enumerate(got) if m.get("READY") == "1")
+    extends = [m for m in got[:first_ready] if "EXTEND_TIMEOUT_USEC" in m]
+    assert extends, got
+    assert all(int(m["EXTEND_TIMEOUT_USEC"]) == 30_000_000 for m in extends)
+    assert "warming up" in extends[0]["STATUS"]
 
 
 def test_worker_sigkill_resumes_from_checkpoint_within_2_s(tmp_path):
