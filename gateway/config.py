@@ -8,6 +8,7 @@ default). Errors name the file, the line and the key, and carry exit status 78.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -109,49 +110,230 @@ class Config:
     source: str = "<defaults>"
 
 
-_RULES: dict[tuple[str, str], tuple[str, Any]] = {
-    ("bus", "interface"): ("one of", ("socketcan", "virtual")),
-    ("bus", "reopen_min_s"): (">", 0.0),
-    ("bus", "reopen_max_s"): (">", 0.0),
-    ("bus", "rx_queue_frames"): (">", 0),
-    ("resampler", "fs_hz"): (">", 0.0),
-    ("resampler", "deadline_s"): (">", 0.0),
-    ("resampler", "lowpass_wheelset_acc_hz"): (">=", 0.0),
-    ("resampler", "lowpass_bogie_acc_hz"): (">=", 0.0),
-    ("resampler", "lowpass_gyro_hz"): (">=", 0.0),
-    ("resampler", "lowpass_body_acc_hz"): (">=", 0.0),
-    ("gating", "speed_min_mps"): (">=", 0.0),
-    ("gating", "speed_max_mps"): (">", 0.0),
-    ("gating", "curve_yaw_rate_max_radps"): (">", 0.0),
-    ("estimator", "particles"): (">", 0),
-    ("estimator", "sensors"): ("one of", (3, 5)),
-    ("estimator", "track_roughness"): (">", 0.0),
-    ("estimator", "drift_per_sqrt_s"): (">=", 0.0),
-    ("estimator", "output_rate_hz"): (">", 0.0),
-    ("estimator", "checkpoint_interval_s"): (">", 0.0),
-    ("estimator", "queue_samples"): (">", 0),
-    ("output", "estimate_rate_hz"): (">", 0.0),
-    ("output", "health_rate_hz"): (">", 0.0),
-    ("serial", "baudrate"): (">", 0),
+MAX_CONFIG_BYTES = 1 << 20
+"""A configuration file is a page of text; anything larger is refused before parsing."""
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, int) and value.bit_length() > 128:
+        return f"an integer of {value.bit_length()} bits"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _num(x: float) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
+@dataclass(frozen=True)
+class Range:
+    """A closed numeric domain ``lo <= value <= hi`` (``off`` also allowed: 0 = off).
+
+    ``hi_open`` makes the top bound exclusive. Floats must be finite.
+    """
+
+    lo: float
+    hi: float
+    off: float | None = None
+    hi_open: bool = False
+
+    def problem(self, value: float) -> str | None:
+        """None when ``value`` is inside, else the "expected ..., got ..." text."""
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"expected a finite number {self.text()}, got {value!r}"
+        if self.off is not None and value == self.off:
+            return None
+        inside = self.lo <= value and (value < self.hi if self.hi_open else value <= self.hi)
+        return None if inside else f"expected a value {self.text()}, got {_describe(value)}"
+
+    def text(self) -> str:
+        top = ")" if self.hi_open else "]"
+        off = f" (or {_num(self.off)} = off)" if self.off is not None else ""
+        return f"in [{_num(self.lo)}, {_num(self.hi)}{top}{off}"
+
+
+@dataclass(frozen=True)
+class OneOf:
+    """A value from a fixed set."""
+
+    choices: tuple[Any, ...]
+
+    def problem(self, value: Any) -> str | None:
+        return None if value in self.choices else \
+            f"expected one of {list(self.choices)}, got {_describe(value)}"
+
+
+@dataclass(frozen=True)
+class Text:
+    """A string: ``min_len``..``max_len`` characters, printable, optionally a pattern."""
+
+    min_len: int = 0
+    max_len: int = 4096
+    pattern: str | None = None
+    what: str = "text"
+
+    def problem(self, value: str) -> str | None:
+        if not self.min_len <= len(value) <= self.max_len:
+            return (f"expected {self.what} of {self.min_len} to {self.max_len} characters, "
+                    f"got {len(value)}")
+        if not value.isprintable():
+            return f"expected printable {self.what}, got {_describe(value)}"
+        if self.pattern is not None and not re.fullmatch(self.pattern, value):
+            return f"expected {self.what}, got {_describe(value)}"
+        return None
+
+
+Domain = Range | OneOf | Text
+
+DOMAINS: dict[tuple[str, str], Domain] = {
+    # python-can interfaces the service is built and tested for
+    ("bus", "interface"): OneOf(("socketcan", "virtual")),
+    # a SocketCAN name has at most 15 characters; virtual channels are free names
+    ("bus", "channel"): Text(1, 64, what="a bus channel name"),
+    ("bus", "reopen_min_s"): Range(0.01, 600.0),
+    ("bus", "reopen_max_s"): Range(0.01, 3600.0),
+    # a full 1 Mbit/s bus is ~8 000 frames/s; 1e6 queued frames is ~2 min and ~0.5 GB
+    ("bus", "rx_queue_frames"): Range(1000, 1_000_000),
+    # sensors sample at 1 kHz; the model's modes lie below 40 Hz
+    ("resampler", "fs_hz"): Range(10.0, 10_000.0),
+    ("resampler", "deadline_s"): Range(0.001, 10.0),
+    # 0 = off; else a cut-off in [0.1 Hz, fs_hz / 2) (Nyquist, checked below)
+    ("resampler", "lowpass_wheelset_acc_hz"): Range(0.1, 5000.0, off=0.0, hi_open=True),
+    ("resampler", "lowpass_bogie_acc_hz"): Range(0.1, 5000.0, off=0.0, hi_open=True),
+    ("resampler", "lowpass_gyro_hz"): Range(0.1, 5000.0, off=0.0, hi_open=True),
+    ("resampler", "lowpass_body_acc_hz"): Range(0.1, 5000.0, off=0.0, hi_open=True),
+    # 150 m/s = 540 km/h, beyond any service train
+    ("gating", "speed_min_mps"): Range(0.0, 150.0),
+    ("gating", "speed_max_mps"): Range(0.1, 150.0),
+    ("gating", "curve_yaw_rate_max_radps"): Range(1e-5, 1.0),
+    # the estimator needs >= 2; 20 000 is 20x what 2 cores run in real time
+    ("estimator", "particles"): Range(2, 20_000),
+    ("estimator", "sensors"): OneOf((3, 5)),
+    # numpy seeds are non-negative; 32 bits is plenty and fits every log and report
+    ("estimator", "seed"): Range(0, 2**32 - 1),
+    # the paper's Ar is 6.6e-4; 1e-6..0.1 spans every track class with margin
+    ("estimator", "track_roughness"): Range(1e-6, 0.1),
+    ("estimator", "estimate_track_roughness"): OneOf((False, True)),
+    # the estimator refuses >= 1/sqrt(s); beyond 0.5 the parameters are noise
+    ("estimator", "drift_per_sqrt_s"): Range(0.0, 0.5),
+    # at most fs_hz (checked below)
+    ("estimator", "output_rate_hz"): Range(0.01, 1000.0),
+    ("estimator", "checkpoint_interval_s"): Range(0.1, 86_400.0),
+    ("estimator", "queue_samples"): Range(100, 1_000_000),
+    # at most [estimator] output_rate_hz (checked below): the CAN sink can only drop
+    ("output", "estimate_rate_hz"): Range(0.01, 1000.0),
+    ("output", "health_rate_hz"): Range(0.01, 100.0),
+    # non-empty: "" would silently put the state into the working directory
+    ("state", "directory"): Text(1, 4096, what="a directory path"),
+    ("serial", "device"): Text(0, 4096, what="a device path"),
+    ("serial", "baudrate"): Range(50, 4_000_000),
+    ("serial", "pin_sha256"): Text(0, 64, r"(|[0-9a-fA-F]{64})",
+                                   what="'' or 64 hex digits (SHA-256)"),
 }
+"""The checked domain of every key (a test asserts that every key has one)."""
+
+
+# ---------------------------------------------------------------- line numbers
+def _split_key(text: str) -> tuple[str, str] | None:
+    """``'a."b".c = rest'`` -> (key text, rest after '='); None when not a key line."""
+    quote, escaped = "", False
+    for i, ch in enumerate(text):
+        if quote:
+            if escaped:
+                escaped = False
+            elif ch == "\\" and quote == '"':
+                escaped = True
+            elif ch == quote:
+                quote = ""
+        elif ch in "\"'":
+            quote = ch
+        elif ch == "=":
+            return text[:i], text[i + 1:]
+        elif ch == "#":
+            return None
+    return None
+
+
+def _paths(value: Any, prefix: tuple[str, ...]) -> list[tuple[str, ...]]:
+    out = [prefix]
+    if isinstance(value, dict):
+        for k, v in value.items():
+            out += _paths(v, prefix + (k,))
+    return out
+
+
+def _key_paths(key_text: str) -> tuple[str, ...] | None:
+    """The dotted key path of ``key_text`` as TOML reads it (quotes and escapes)."""
+    try:
+        doc = tomllib.loads(f"{key_text} = 0")
+    except tomllib.TOMLDecodeError:
+        return None
+    path: list[str] = []
+    node: Any = doc
+    while isinstance(node, dict) and len(node) == 1:
+        (k, node), = node.items()
+        path.append(k)
+    return tuple(path)
+
+
+def _line_map(text: str) -> list[tuple[int, tuple[str, ...]]]:
+    """(line, key path) for every header, key and inline-table key in ``text``."""
+    out: list[tuple[int, tuple[str, ...]]] = []
+    table: tuple[str, ...] = ()
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        if line.startswith("["):
+            try:                              # a header line alone is a TOML document
+                node: Any = tomllib.loads(line)
+            except tomllib.TOMLDecodeError:
+                continue
+            path: list[str] = []
+            while isinstance(node, dict) and len(node) == 1:
+                (k, node), = node.items()
+                path.append(k)
+                node = node[-1] if isinstance(node, list) and node else node
+            table = tuple(path)
+            out.append((n, table))
+            continue
+        split = _split_key(line)
+        if split is None:
+            continue
+        keys = _key_paths(split[0])
+        if keys is None:
+            continue
+        out.append((n, table + keys))
+        rest = split[1].strip()
+        if rest.startswith("{"):
+            try:
+                inline = tomllib.loads(f"x = {rest}")["x"]
+            except tomllib.TOMLDecodeError:
+                continue
+            out += [(n, table + keys + p) for p in _paths(inline, ())[1:]]
+    return out
 
 
 def _line_of(text: str, section: str, key: str | None) -> int:
-    """1-based line of ``[section]`` or of ``key`` inside it; 1 when not found."""
-    current = None
-    for i, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        m = re.match(r"^\[\s*([A-Za-z0-9_.-]+)\s*\]", line)
-        if m:
-            current = m.group(1)
-            if key is None and current == section:
-                return i
-            continue
-        if current == section and key is not None and re.match(rf"^{re.escape(key)}\s*=", line):
-            return i
-    return 1
+    """1-based line of ``[section] key`` (or of the section) however it was written:
+    a header, a dotted or quoted key, an inline table; the closest enclosing table's
+    line when the key itself is not written (1 when nothing matches)."""
+    target = (section,) if key is None else (section, key)
+    best_line, best_len = 1, 0
+    for n, path in _line_map(text):
+        if path == target:
+            return n
+        common = 0
+        for a, b in zip(path, target, strict=False):
+            if a != b:
+                break
+            common += 1
+        if common > best_len and len(path) == common:
+            best_line, best_len = n, common
+    return best_line
 
 
+# ------------------------------------------------------------------ validation
 def _type_ok(value: Any, default: Any) -> bool:
     if isinstance(default, bool):
         return isinstance(value, bool)
@@ -162,27 +344,25 @@ def _type_ok(value: Any, default: Any) -> bool:
     return isinstance(value, type(default))
 
 
-def _check_rule(section: str, key: str, value: Any) -> str | None:
-    rule = _RULES.get((section, key))
-    if rule is None:
-        return None
-    op, arg = rule
-    ok = {"one of": lambda: value in arg, ">": lambda: value > arg,
-          ">=": lambda: value >= arg}[op]()
-    return None if ok else f"expected a value {op} {arg}, got {value!r}"
+def check_value(section: str, key: str, value: Any) -> str | None:
+    """The domain problem of ``[section] key = value`` (None when it is fine)."""
+    domain = DOMAINS.get((section, key))
+    return None if domain is None else domain.problem(value)
 
 
-def _build(data: dict[str, Any], source: str, text: str) -> Config:
+def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
     def fail(section: str, key: str | None, message: str) -> ConfigError:
-        line = _line_of(text, section, key)
         where = f"[{section}]" + (f" {key}" if key else "")
-        return ConfigError(f"{source}:{line}: {where}: {message}")
+        if text is None:
+            return ConfigError(f"{source}: {where}: {message}")
+        return ConfigError(f"{source}:{_line_of(text, section, key)}: {where}: {message}")
 
     sections: dict[str, Any] = {}
     known = {f.name: f for f in dataclasses.fields(Config) if f.name != "source"}
     for name, table in data.items():
         if name not in known:
-            raise fail(name, None, f"expected a section from {sorted(known)}, got [{name}]")
+            raise fail(name, None, f"expected a section from {sorted(known)}, "
+                                   f"got [{_describe(name)[1:-1]}]")
         if not isinstance(table, dict):
             raise fail(name, None, f"expected a table [{name}], got {type(table).__name__}")
         defaults = getattr(Config(), name)
@@ -190,17 +370,16 @@ def _build(data: dict[str, Any], source: str, text: str) -> Config:
         values = {}
         for key, value in table.items():
             if key not in fields:
-                raise fail(name, key, f"expected a key from {sorted(fields)}, got {key!r}")
+                raise fail(name, key, f"expected a key from {sorted(fields)}, "
+                                      f"got {_describe(key)}")
             default = getattr(defaults, key)
             if not _type_ok(value, default):
                 raise fail(name, key, f"expected {type(default).__name__}, "
-                                      f"got {type(value).__name__} {value!r}")
-            if isinstance(default, float):
-                value = float(value)
-            problem = _check_rule(name, key, value)
+                                      f"got {type(value).__name__} {_describe(value)}")
+            problem = check_value(name, key, value)
             if problem:
                 raise fail(name, key, problem)
-            values[key] = value
+            values[key] = float(value) if isinstance(default, float) else value
         sections[name] = dataclasses.replace(defaults, **values)
     cfg = Config(**sections, source=source)
     if cfg.gating.speed_min_mps >= cfg.gating.speed_max_mps:
@@ -209,6 +388,19 @@ def _build(data: dict[str, Any], source: str, text: str) -> Config:
     if cfg.bus.reopen_min_s > cfg.bus.reopen_max_s:
         raise fail("bus", "reopen_max_s", f"expected reopen_max_s >= reopen_min_s "
                    f"({cfg.bus.reopen_min_s}), got {cfg.bus.reopen_max_s}")
+    r = cfg.resampler
+    for key in ("lowpass_wheelset_acc_hz", "lowpass_bogie_acc_hz", "lowpass_gyro_hz",
+                "lowpass_body_acc_hz"):
+        if getattr(r, key) >= r.fs_hz / 2:
+            raise fail("resampler", key, f"expected 0 (off) or a cut-off below fs_hz / 2 = "
+                       f"{r.fs_hz / 2:g} Hz, got {getattr(r, key)!r}")
+    if cfg.estimator.output_rate_hz > r.fs_hz:
+        raise fail("estimator", "output_rate_hz", f"expected at most [resampler] fs_hz "
+                   f"({r.fs_hz:g}), got {cfg.estimator.output_rate_hz!r}")
+    if cfg.output.estimate_rate_hz > cfg.estimator.output_rate_hz:
+        raise fail("output", "estimate_rate_hz", f"expected at most [estimator] "
+                   f"output_rate_hz ({cfg.estimator.output_rate_hz:g}), got "
+                   f"{cfg.output.estimate_rate_hz!r}")
     return cfg
 
 
@@ -218,17 +410,30 @@ def load_config(path: str | Path | None) -> Config:
         return Config()
     p = str(path)
     try:
-        text = Path(p).read_text(encoding="utf-8")
+        with open(p, "rb") as handle:
+            raw = handle.read(MAX_CONFIG_BYTES + 1)
     except OSError as err:
-        raise ConfigError(f"{p}: expected a readable config file, got {err.strerror}") from err
+        raise ConfigError(f"{p}: expected a readable config file, got "
+                          f"{err.strerror or err}") from err
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{p}: expected a config file of at most {MAX_CONFIG_BYTES} bytes, "
+                          f"got more")
+    try:
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as err:
-        raise ConfigError(f"{p}: expected UTF-8 TOML text, got {err}") from err
+        line = raw.count(b"\n", 0, err.start) + 1
+        column = err.start - (raw.rfind(b"\n", 0, err.start) + 1) + 1
+        raise ConfigError(f"{p}:{line}: expected UTF-8 TOML text, got byte "
+                          f"0x{raw[err.start]:02x} at column {column}") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         found = re.search(r"line (\d+)", str(err))
         line = getattr(err, "lineno", None) or (int(found.group(1)) if found else 1)
-        raise ConfigError(f"{p}:{line}: expected valid TOML, got {err}") from err
+        raise ConfigError(f"{p}:{line}: expected valid TOML, got {err}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: expected TOML nested a few levels deep, got nesting "
+                          f"too deep to read") from None
     return _build(data, p, text)
 
 
@@ -240,7 +445,7 @@ def with_overrides(cfg: Config, overrides: dict[str, Any]) -> Config:
     for dotted, value in overrides.items():
         section, _, key = dotted.partition(".")
         data.setdefault(section, {})[key] = value
-    return _build(data, f"{cfg.source} (with command-line overrides)", "")
+    return _build(data, f"{cfg.source} (with command-line overrides)", None)
 
 
 def as_toml(cfg: Config) -> str:

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 
-from gateway.config import Config, as_toml, load_config, with_overrides
+from gateway.config import Config, as_toml, check_value, load_config, with_overrides
 from gateway.errors import ConfigError
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "systemd" / "railgw.example.toml"
@@ -31,8 +32,8 @@ def test_round_trip_through_toml(tmp_path):
 
 @pytest.mark.parametrize("text, line, words", [
     ("[bus]\ninterface = \"socketcan\"\nchannel = 5\n", 3, "[bus] channel: expected str"),
-    ("[bus]\n\n[estimator]\nparticles = 0\n", 4, "[estimator] particles: expected a value > 0"),
-    ("[estimator]\nsensors = 4\n", 2, "expected a value one of (3, 5), got 4"),
+    ("[bus]\n\n[estimator]\nparticles = 0\n", 4, "[estimator] particles: expected a value in [2,"),
+    ("[estimator]\nsensors = 4\n", 2, "expected one of [3, 5], got 4"),
     ("[estimatr]\nparticles = 10\n", 1, "expected a section from"),
     ("[bus]\nchanel = \"can0\"\n", 2, "expected a key from"),
     ("[bus]\ninterface = \n", 2, "expected valid TOML"),
@@ -51,3 +52,73 @@ def test_errors_name_file_line_and_key(tmp_path, text, line, words):
 def test_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="expected a readable config file"):
         load_config(tmp_path / "nope.toml")
+
+
+# --- issue 12, finding 3: values that passed validation and then killed the worker, and
+# errors that named no line or key. Every one is now exit 78, one line, file:line: [s] key.
+@pytest.mark.parametrize("text, line, words", [
+    ("[estimator]\nseed = -1\n", 2, "[estimator] seed: expected a value in [0, 4294967295]"),
+    ("[estimator]\ndrift_per_sqrt_s = 5.0\n", 2, "[estimator] drift_per_sqrt_s: expected a "
+                                                  "value in [0, 0.5], got 5.0"),
+    ("[estimator]\nparticles = 1\n", 2, "[estimator] particles: expected a value in [2,"),
+    ("[resampler]\ndeadline_s = inf\n", 2, "[resampler] deadline_s: expected a finite number"),
+    ("[resampler]\nfs_hz = inf\n", 2, "[resampler] fs_hz: expected a finite number"),
+    ("[resampler]\nfs_hz = nan\n", 2, "[resampler] fs_hz: expected a finite number"),
+    ("[bus]\n\n[resampler]\nlowpass_gyro_hz = 600\n", 4,
+     "[resampler] lowpass_gyro_hz: expected 0 (off) or a cut-off below fs_hz / 2 = 500 Hz"),
+    ("[bus]\n\n[estimator]\n\"particles\" = 0\n", 4, "[estimator] particles: expected a value"),
+    ("[bus]\n\n[estimator]\n'particles' = 0\n", 4, "[estimator] particles: expected a value"),
+    ("# inline\n\nestimator = { sensors = 3, particles = 0 }\n", 3, "[estimator] particles"),
+    ("# dotted\n\nestimator.particles = 0\n", 3, "[estimator] particles: expected a value"),
+    ("[bus]\n[estimator]\n[estimator.foo]\nx = 1\n", 3, "[estimator] foo: expected a key from"),
+    ("[bus]\n\n[estimator.particles]\nx = 1\n", 3, "[estimator] particles: expected int, got dict"),
+    ("[ \"estimator\" ]  # quoted header\n\nqueue_samples = 1\n", 3, "[estimator] queue_samples"),
+    ("[state]\ndirectory = \"\"\n", 2, "[state] directory: expected a directory path of 1 to"),
+    ("[resampler]\n\nfs_hz = 1" + "0" * 400 + "\n", 3, "[resampler] fs_hz: expected a value in "
+                                                      "[10, 10000], got an integer of"),
+    ("[bus]\nrx_queue_frames = 10000000000\n", 2, "[bus] rx_queue_frames: expected a value in"),
+    ("[estimator]\noutput_rate_hz = 10.0\n[output]\nestimate_rate_hz = 20.0\n", 4,
+     "[output] estimate_rate_hz: expected at most [estimator] output_rate_hz (10)"),
+    ("[serial]\npin_sha256 = \"1234\"\n", 2, "[serial] pin_sha256: expected '' or 64 hex"),
+    ("[bus]\nchannel = \"can0\\u0000\"\n", 2, "[bus] channel: expected printable"),
+])
+def test_domain_errors_name_file_line_and_key(tmp_path, text, line, words):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert info.value.exit_code == 78 and "\n" not in message
+    assert message.startswith(f"{path}:{line}: "), message
+    assert words in message, message
+
+
+def test_non_utf8_names_the_line_and_column(tmp_path):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b"[bus]\n\nchannel = \"b\xe4hn\"\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value) == f"{path}:3: expected UTF-8 TOML text, got byte 0xe4 at column 13"
+
+
+def test_oversized_file_is_refused_before_parsing(tmp_path):
+    path = tmp_path / "big.toml"
+    path.write_text("# " + "x" * (1 << 20) + "\n")
+    with pytest.raises(ConfigError, match="expected a config file of at most 1048576 bytes"):
+        load_config(path)
+
+
+def test_every_key_has_a_checked_domain():
+    from gateway.config import DOMAINS
+    keys = {(s.name, k.name) for s in dataclasses.fields(Config) if s.name != "source"
+            for k in dataclasses.fields(getattr(Config(), s.name))}
+    assert keys == set(DOMAINS)
+    for (section, key), _ in DOMAINS.items():   # the defaults are inside their domains
+        assert check_value(section, key, getattr(getattr(Config(), section), key)) is None
+
+
+def test_overrides_are_checked_too():
+    with pytest.raises(ConfigError) as info:
+        with_overrides(Config(), {"estimator.seed": -1})
+    assert str(info.value) == ("<defaults> (with command-line overrides): [estimator] seed: "
+                               "expected a value in [0, 4294967295], got -1")
