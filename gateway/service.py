@@ -16,7 +16,7 @@ import math
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from types import FrameType
 from typing import Any
@@ -31,7 +31,7 @@ from gateway.pipeline import Pipeline
 from gateway.records import Alert, Estimate
 from gateway.sdnotify import Notifier
 from gateway.service_view import ServiceViewImpl
-from gateway.sinks import CanSink, Health, LogSink
+from gateway.sinks import CanSink, Health, HealthFlags, LogSink
 from gateway.source import BusSource
 from gateway.state import StateStore
 
@@ -49,14 +49,17 @@ STARTUP_EXTEND_LIMIT_S = 900.0
 time-out and Restart= take over."""
 
 
-def status_line(est: Estimate | None, active_alerts: int, bus_state: str, rtf: float) -> str:
-    """The one-line STATUS= text, e.g. ``Csy 39.8+-0.7 kNs/m, ...``."""
+def status_line(est: Estimate | None, active_alerts: int, bus_state: str, rtf: float,
+                flags: Sequence[str] = ()) -> str:
+    """The one-line STATUS= text, e.g. ``Csy 39.8+-0.7 kNs/m, ...``; raised health flags
+    (``HealthFlags.names()``) at the end, e.g. ``; flags priority-not-applied``."""
+    tail = f"; flags {','.join(flags)}" if flags else ""
     if est is None:
-        return f"waiting for estimates; bus {bus_state}"
+        return f"waiting for estimates; bus {bus_state}{tail}"
     m, s = est.mean, est.std
     return (f"Csy {m[0] / 1e3:.1f}+-{s[0] / 1e3:.1f} kNs/m, Csay {m[1] / 1e3:.0f}+-"
             f"{s[1] / 1e3:.0f} kNs/m, conicity {m[2]:.3f}+-{s[2]:.3f}; t={est.t_s:.0f} s; "
-            f"{active_alerts} active alert(s); bus {bus_state}; RTF {rtf:.2f}")
+            f"{active_alerts} active alert(s); bus {bus_state}; RTF {rtf:.2f}{tail}")
 
 
 @dataclass
@@ -85,7 +88,11 @@ class Service:
         self.recent_log: list[str] = []
         self.lock = threading.Lock()
         spec = BusSpec(cfg.bus.interface, cfg.bus.channel)
-        self.source = BusSource(lambda: open_bus(spec), queue_frames=cfg.bus.rx_queue_frames,
+        self.rx_filters = self.codec.can_filters()
+        """The DBC's sensor ids: kernel filters on SocketCAN (foreign frames never reach
+        Python), python-can's software filter on ``virtual``."""
+        self.source = BusSource(lambda: open_bus(spec, can_filters=self.rx_filters),
+                                queue_frames=cfg.bus.rx_queue_frames,
                                 reopen_min_s=cfg.bus.reopen_min_s,
                                 reopen_max_s=cfg.bus.reopen_max_s)
         self.can_sink = CanSink(self.codec, self.source.send, cfg.estimator.particles)
@@ -99,6 +106,7 @@ class Service:
         self.view = ServiceViewImpl(self)
         self._load_mark = (time.monotonic(), 0)
         self._load_pct = 0.0
+        self._resyncs_reported = 0
 
     # -------------------------------------------------------------- callbacks
     def _on_checkpoint(self, seq: int, blob: bytes) -> None:
@@ -170,7 +178,26 @@ class Service:
             (worker.samples_dropped if worker else 0)
         return Health(state, int(src.bus_state), len(self.policy.active),
                       src.frames_rx, p.validator.stats.rejected_total if p else 0, dropped,
-                      p.rtf if p else math.nan)
+                      p.rtf if p else math.nan, self.health_flags())
+
+    def health_flags(self) -> HealthFlags:
+        """The faults the service runs on with, for GW_HealthFlags, STATUS= and the console."""
+        p = self.pipeline
+        late = gaps = resyncs = 0
+        if p is not None:
+            # Front-end hook (issue 12): the resampler's own counters until the pipeline's
+            # FrontEnd reports late/gap samples by reason; then sum its reasons here.
+            rs = p.resampler.stats()
+            late, gaps, resyncs = rs.late_frames, sum(rs.missing.values()), rs.resyncs
+        priority_error = p.worker.stats.priority_error if p is not None else None
+        return HealthFlags(
+            state_quarantined=bool(self.store.problems),
+            persistence_failing=self.store.write_failures > 0,
+            priority_not_applied=bool(priority_error),
+            front_end_resyncing=resyncs > self._resyncs_reported,
+            two_senders=False,  # two-senders hook (issue 12 finding 8): no detector yet
+            late_frames=late, gap_samples=gaps, write_failures=self.store.write_failures,
+            resyncs=resyncs)
 
     def _progressing(self, last_done: list[float]) -> bool:
         p = self.pipeline
@@ -242,7 +269,9 @@ class Service:
                 now = time.monotonic()
                 if now >= next_health:
                     next_health = now + 1.0 / self.cfg.output.health_rate_hz
-                    self.can_sink.emit_health(self.health())
+                    health = self.health()
+                    self.can_sink.emit_health(health)
+                    self._resyncs_reported = health.flags.resyncs
                     if self._progressing(last_done):
                         self.notifier.watchdog()
                 if now >= next_publish:
@@ -253,7 +282,7 @@ class Service:
                     next_status = now + 2.0
                     self.notifier.status(status_line(
                         p.last_estimate, len(self.policy.active), self.source.stats.bus_state.name,
-                        p.rtf))
+                        p.rtf, self.health_flags().names()))
         finally:
             self.close()
         return 0

@@ -29,8 +29,37 @@ CONVERGED_REL_STD = 0.05
 
 
 @dataclass(frozen=True)
+class HealthFlags:
+    """Faults the service runs on with, and their counters: the 1 Hz GW_HealthFlags frame."""
+
+    state_quarantined: bool = False
+    """A state file could not be used at start and was set aside."""
+    persistence_failing: bool = False
+    """A state-directory write has failed since start."""
+    priority_not_applied: bool = False
+    """The estimator worker could not lower its CPU priority."""
+    front_end_resyncing: bool = False
+    """The front end re-synchronised a node clock since the previous report."""
+    two_senders: bool = False
+    """Two interleaved senders seen on one sensor id."""
+    late_frames: int = 0
+    gap_samples: int = 0
+    write_failures: int = 0
+    resyncs: int = 0
+
+    def names(self) -> list[str]:
+        """The raised flags, short names for the STATUS line and the log."""
+        raised = (("state-quarantined", self.state_quarantined),
+                  ("persistence-failing", self.persistence_failing),
+                  ("priority-not-applied", self.priority_not_applied),
+                  ("front-end-resyncing", self.front_end_resyncing),
+                  ("two-senders", self.two_senders))
+        return [name for name, on in raised if on]
+
+
+@dataclass(frozen=True)
 class Health:
-    """What the 1 Hz health frame reports."""
+    """What the 1 Hz health frames report."""
 
     gw_state: str            # Starting | Running | Degraded | Fault
     bus_state: int           # 0 active, 1 passive, 2 bus-off
@@ -39,6 +68,7 @@ class Health:
     frames_rejected: int
     frames_dropped: int
     rtf: float              # estimator real-time factor (data s per wall s)
+    flags: HealthFlags = HealthFlags()
 
 
 def estimate_status(est: Estimate, index: int) -> str:
@@ -93,13 +123,22 @@ class CanSink:
             "GW_Alert_ValueRel": alert.value_rel if math.isfinite(alert.value_rel) else None})
 
     def emit_health(self, h: Health) -> None:
-        """The 1 Hz GW_Health frame; counters wrap at 12 bits."""
+        """The 1 Hz GW_Health and GW_HealthFlags frames; counters wrap at their width."""
         self._out("GW_Health", {
             "GW_Health_GwState": h.gw_state, "GW_Health_BusState": h.bus_state,
             "GW_Health_ActiveAlerts": min(h.active_alerts, 6),
             "GW_Health_FramesRx": h.frames_rx, "GW_Health_FramesRejected": h.frames_rejected,
             "GW_Health_FramesDropped": h.frames_dropped,
             "GW_Health_RtFactor": h.rtf if math.isfinite(h.rtf) else None})
+        f = h.flags
+        self._out("GW_HealthFlags", {
+            "GW_HealthFlags_StateQuarantined": int(f.state_quarantined),
+            "GW_HealthFlags_PersistFailing": int(f.persistence_failing),
+            "GW_HealthFlags_PriorityNotApplied": int(f.priority_not_applied),
+            "GW_HealthFlags_FrontEndResync": int(f.front_end_resyncing),
+            "GW_HealthFlags_TwoSenders": int(f.two_senders),
+            "GW_HealthFlags_LateFrames": f.late_frames, "GW_HealthFlags_GapSamples": f.gap_samples,
+            "GW_HealthFlags_WriteFailures": f.write_failures, "GW_HealthFlags_Resyncs": f.resyncs})
 
     def close(self) -> None:
         """Nothing to release; idempotent."""

@@ -13,16 +13,28 @@ kernels, so a warm spare worker always waits, imported, for its start message: a
 worker is replaced by the spare at once (well under the 2 s target) and a new spare is
 spawned in the background. A worker that dies before finishing any sample three times in a row
 is an error (EstimatorError), not a restart loop.
+
+Process hygiene: a worker dies with its parent (``PR_SET_PDEATHSIG`` = SIGKILL, and a
+watchdog thread on multiprocessing's parent sentinel pipe where prctl is missing or the
+parent died before it was set). It ignores SIGINT and SIGTERM (they are blocked from
+before its interpreter starts), so a Ctrl-C or a process-group signal reaches only the
+parent, which stops the worker and writes the final checkpoint. The worker lowers its
+CPU priority (``os.nice``); whether that worked is reported to the parent
+(:attr:`WorkerStats.priority_error`), never silently dropped.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import math
 import multiprocessing as mp
 import os
 import queue
+import signal
+import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -38,6 +50,9 @@ log = logging.getLogger(__name__)
 
 WORKER_NICE = 10
 """How much lower the worker's CPU priority is than the service's."""
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""Signals a worker ignores: its parent stops it (and takes the final checkpoint)."""
 MAX_FAILED_STARTS = 3
 """Consecutive worker deaths before the first processed sample that make an error."""
 BLOCK_SAMPLES = 20
@@ -87,18 +102,61 @@ class WorkerSettings:
     checkpoint_interval_s: float
     warmup: Callable[[], None] | None = None
     """Picklable; run by a spare worker before it waits (imports, loads compiled code)."""
+    lower_priority: Callable[[int], object] = os.nice
+    """Picklable; called with WORKER_NICE in the worker. The unit's seccomp filter or a
+    test may make it raise OSError: the worker then runs on and reports it."""
 
 
-def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any) -> None:
+def die_with_parent(parent_pid: int) -> str:
+    """Make this process die when ``parent_pid`` does: PR_SET_PDEATHSIG (Linux), and a
+    watchdog thread on the multiprocessing parent sentinel (any POSIX). Returns how."""
+    how = "watchdog"
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0:
+                how = "pdeathsig+watchdog"
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:        # died before the death signal was armed
+        os._exit(1)
+    parent = mp.parent_process()
+    if parent is not None and getattr(parent, "sentinel", None) is not None:
+        def watch() -> None:
+            parent.join()                 # returns when the parent's end of the pipe closes
+            os._exit(1)
+    else:
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(0.5)
+            os._exit(1)
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    return how
+
+
+def lower_priority(fn: Callable[[int], object], nice: int = WORKER_NICE) -> str:
+    """Lower this process's CPU priority by ``nice``; "" if done, else why not."""
+    try:
+        fn(nice)
+    except OSError as err:
+        return f"nice +{nice} refused: {err}"
+    return ""
+
+
+def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any,
+                 parent_pid: int) -> None:
     """Process entry point: warm up, wait for ("init", checkpoint, checkpoint_seq), then
     step, report and checkpoint; exits on a None item.
 
     ``checkpoint_seq`` is the last sample the checkpoint has seen; older ones are skipped.
     """
+    for sig in STOP_SIGNALS:              # blocked since the spawn: ignore, then unblock
+        signal.signal(sig, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+    die_with_parent(parent_pid)
     # The receive/decode/resample path has deadlines; the estimator has a queue. So the
     # worker yields the CPU to it (the service's main process keeps the default priority).
-    with contextlib.suppress(OSError):
-        os.nice(WORKER_NICE)
+    priority_error = lower_priority(settings.lower_priority)
     if settings.warmup is not None:
         settings.warmup()
     init = in_q.get()
@@ -106,7 +164,7 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any) -> 
         return
     _, checkpoint, checkpoint_seq = init
     est = settings.restorer(checkpoint) if checkpoint else settings.builder()
-    out_q.put(("ready", checkpoint_seq if checkpoint else -1, None))
+    out_q.put(("ready", checkpoint_seq if checkpoint else -1, priority_error))
     next_out = -math.inf
     next_ckpt = -math.inf
     last_seq = checkpoint_seq if checkpoint else -1
@@ -176,6 +234,8 @@ class WorkerStats:
     alive: bool = False
     last_checkpoint_seq: int = -1
     replay_backlog: int = 0
+    priority_error: str | None = None
+    """None until a worker reported; "" when its priority was lowered; else why not."""
     errors: list[str] = field(default_factory=list)
 
 
@@ -211,8 +271,14 @@ class WorkerLink:
         in_q = self._ctx.Queue(maxsize=self._queue_blocks)
         out_q = self._ctx.Queue()
         proc = self._ctx.Process(target=_worker_main, name="railgw-rbpf", daemon=True,
-                                 args=(self._settings, in_q, out_q, self._stop))
-        proc.start()
+                                 args=(self._settings, in_q, out_q, self._stop, os.getpid()))
+        # The child inherits this thread's signal mask through exec: a Ctrl-C while its
+        # interpreter boots stays pending until the worker has chosen to ignore it.
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            proc.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
         return proc, in_q, out_q
 
     @staticmethod
@@ -297,6 +363,15 @@ class WorkerLink:
                 self._checkpointed(seq, payload)
             elif kind == "ready":
                 self.stats.ready = True
+                self._priority_reported(payload)
+
+    def _priority_reported(self, error: str | None) -> None:
+        if error is None:
+            return
+        if error and error != self.stats.priority_error:
+            log.warning("estimator worker %s runs at the service's priority: %s (the "
+                        "receive path now competes with it for the CPU)", self.pid, error)
+        self.stats.priority_error = error
 
     def wait_ready(self, timeout_s: float) -> bool:
         """Poll until the worker has built its estimator; estimates meanwhile are kept

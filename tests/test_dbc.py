@@ -26,10 +26,11 @@ from gateway.errors import DbcError, FrameError
 from gateway.model import SENSOR_NOISE_VAR, SENSOR_UNITS, SENSORS_5
 
 CYCLES_MS = {"WSN_Lat": 1, "BGN_Lat": 1, "BDN_Lat": 1, "VEH_Speed": 10, "GW_EstCsy": 100,
-             "GW_EstCsay": 100, "GW_EstConicity": 100, "GW_Alert": None, "GW_Health": 1000}
+             "GW_EstCsay": 100, "GW_EstConicity": 100, "GW_Alert": None, "GW_Health": 1000,
+             "GW_HealthFlags": 1000}
 IDS = {"WSN_Lat": 0x101, "BGN_Lat": 0x102, "BDN_Lat": 0x103, "VEH_Speed": 0x110,
        "GW_EstCsy": 0x300, "GW_EstCsay": 0x301, "GW_EstConicity": 0x302, "GW_Alert": 0x310,
-       "GW_Health": 0x320}
+       "GW_Health": 0x320, "GW_HealthFlags": 0x321}
 
 
 @pytest.fixture(scope="module")
@@ -163,9 +164,9 @@ def test_frame_bits_worst_case_known_values() -> None:
 
 def test_bus_load_below_half_and_hand_computed(codec: Codec) -> None:
     load = codec.bus_load()
-    # frames/s: 3 x 1000 sensor + 100 speed + 3 x 10 estimates + 1 health, 135 bits each
-    assert load.bits_per_s == pytest.approx((3000 + 100 + 30 + 1) * 135)
-    assert load.load_fraction == pytest.approx(0.422685)
+    # frames/s: 3 x 1000 sensor + 100 speed + 3 x 10 estimates + 2 health, 135 bits each
+    assert load.bits_per_s == pytest.approx((3000 + 100 + 30 + 2) * 135)
+    assert load.load_fraction == pytest.approx(0.42282)
     assert load.load_fraction <= 0.5
     sensors = bus_load([f for f in codec.cyclic_frames() if f.cycle_time_ms == 1], 1e6)
     assert sensors.load_fraction == pytest.approx(0.405)
@@ -299,3 +300,26 @@ def test_decode_throughput_well_above_8000_frames_per_s(codec: Codec) -> None:
         codec.decode(can_id, data, 0.0)
     rate = len(frames) / (time.perf_counter() - start)
     assert rate > 8000, f"{rate:.0f} frames/s"
+
+
+def test_health_flags_frame_carries_every_flag_and_counter(codec: Codec) -> None:
+    from gateway.sinks import CanSink, Health, HealthFlags
+
+    sent: list[can.Message] = []
+    sink = CanSink(codec, lambda m: sent.append(m) or True, 500)
+    for k, flag in enumerate(("state_quarantined", "persistence_failing",
+                              "priority_not_applied", "front_end_resyncing", "two_senders")):
+        flags = HealthFlags(**{flag: True}, late_frames=4096 + k, gap_samples=7,
+                            write_failures=3, resyncs=256 + k)
+        sink.emit_health(Health("Running", 0, 0, 1, 0, 0, 1.0, flags))
+        frames = {codec.decode_message(m).message: codec.decode_message(m) for m in sent[-2:]}
+        v = frames["GW_HealthFlags"].values
+        raised = [name for name in ("StateQuarantined", "PersistFailing", "PriorityNotApplied",
+                                    "FrontEndResync", "TwoSenders")
+                  if v[f"GW_HealthFlags_{name}"] == 1]
+        assert len(raised) == 1 and flags.names() == [flag.replace("_", "-")]
+        assert raised[0] == ("StateQuarantined", "PersistFailing", "PriorityNotApplied",
+                             "FrontEndResync", "TwoSenders")[k]
+        assert (v["GW_HealthFlags_LateFrames"], v["GW_HealthFlags_GapSamples"],
+                v["GW_HealthFlags_WriteFailures"], v["GW_HealthFlags_Resyncs"]) == (k, 7, 3, k)
+        assert frames["GW_Health"].values["GW_Health_GwState"] == 1

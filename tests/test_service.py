@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
 import signal
 import socket
@@ -291,3 +293,162 @@ def test_live_ten_nominal_minutes_raise_no_alert_frame(tmp_path):
         # falls behind, drops samples at its queue and sends fewer)
         assert len(run.decoded("GW_EstCsy")) > 1000
         assert run.decoded("GW_Alert") == []
+
+
+# ------------------------------------------------- receive filters, health flags, hygiene
+def test_the_service_bus_delivers_only_the_dbc_sensor_ids(tmp_path):
+    """The bus the service opens carries the DBC's receive filters (kernel filters on
+    SocketCAN, tests/vcan; python-can's software filter here on ``virtual``): a flood of
+    foreign ids never reaches the source's queue, so never the decode path."""
+    channel = f"filters-{time.monotonic_ns()}"
+    cfg = with_overrides(Config(), {"bus.interface": "virtual", "bus.channel": channel,
+                                    "state.directory": str(tmp_path / "state")})
+    svc = Service(cfg)
+    codec = default_codec()
+    assert sorted(f["can_id"] for f in svc.rx_filters) == sorted(codec.sensor_ids())
+    speed = codec.encode_message("VEH_Speed", {"VEH_Speed_SampleIdx": 1, "VEH_Speed": 42.5,
+                                               "VEH_Odometer": 0.0}, 1)
+    sensors = set(codec.sensor_ids())
+    foreign = [i for i in range(0x800) if i not in sensors]
+    svc.source.start()
+    try:
+        assert svc.source.opened.wait(10)
+        with open_bus(f"virtual:{channel}") as tx:
+            for i in foreign:
+                tx.send(can.Message(arbitration_id=i, data=bytes(8), is_extended_id=False))
+            for i in sensors:                       # 29-bit ids with a sensor's low bits
+                tx.send(can.Message(arbitration_id=0x1000000 | i, data=bytes(8)))
+            tx.send(speed)                          # the end marker: a sensor frame
+        assert _wait(lambda: svc.source.stats.frames_rx >= 1, 10)
+        got = [svc.source.get(1.0)]
+        assert svc.source.get() is None
+    finally:
+        svc.close()
+    assert [(m.arbitration_id, bytes(m.data)) for m in got if m] == \
+        [(speed.arbitration_id, bytes(speed.data))]
+    assert svc.source.stats.frames_rx == 1          # of 2048 + 4 frames sent
+
+
+def refuse_nice(increment: int) -> int:
+    """os.nice under a seccomp filter that denies setpriority (pickled to the worker)."""
+    raise PermissionError(1, "Operation not permitted")
+
+
+def test_a_worker_priority_not_applied_shows_in_health_frame_status_and_journal(
+        tmp_path, monkeypatch, caplog):
+    import dataclasses
+
+    import gateway.pipeline
+    from gateway.service import status_line
+
+    real = gateway.pipeline.worker_settings
+    monkeypatch.setattr(gateway.pipeline, "worker_settings",
+                        lambda cfg: dataclasses.replace(real(cfg), lower_priority=refuse_nice))
+    caplog.set_level(logging.WARNING, logger="gateway.worker")
+    with Running(tmp_path, "nice", particles=32) as run:       # the worker is up
+        n0 = len(run.decoded("GW_HealthFlags"))
+        assert _wait(lambda: len(run.decoded("GW_HealthFlags")) >= n0 + 2, 10)
+        flags = run.service.health_flags()
+    last = run.decoded("GW_HealthFlags")[-1]
+    assert last["GW_HealthFlags_PriorityNotApplied"] == 1
+    assert last["GW_HealthFlags_StateQuarantined"] == 0
+    assert last["GW_HealthFlags_PersistFailing"] == 0
+    assert flags.names() == ["priority-not-applied"]
+    assert status_line(None, 0, "ERROR_ACTIVE", 1.0, flags.names()).endswith(
+        "; flags priority-not-applied")
+    assert any("runs at the service's priority" in r.getMessage() for r in caplog.records)
+
+
+def test_health_flags_are_clear_when_the_priority_is_lowered(tmp_path):
+    with Running(tmp_path, "nice-ok", particles=32) as run:    # the worker is up
+        n0 = len(run.decoded("GW_HealthFlags"))
+        assert _wait(lambda: len(run.decoded("GW_HealthFlags")) >= n0 + 2, 10)
+        assert run.service.pipeline is not None
+        assert run.service.pipeline.worker.stats.priority_error == ""
+    last = run.decoded("GW_HealthFlags")[-1]
+    assert last["GW_HealthFlags_PriorityNotApplied"] == 0
+
+
+class GatewayRun:
+    """``python -m gateway run`` in its own process group, with a NOTIFY_SOCKET of ours."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        self.state = tmp_path / "state"
+        self._notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._notify.bind(str(tmp_path / "notify"))
+        self.stderr_path = tmp_path / "stderr.log"
+        self._stderr = self.stderr_path.open("w")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "gateway", "run", "--bus", f"virtual:run-{os.getpid()}",
+             "--state-dir", str(self.state), "--particles", "32"],
+            cwd=ROOT, env=dict(os.environ, NOTIFY_SOCKET=str(tmp_path / "notify")),
+            stdout=subprocess.DEVNULL, stderr=self._stderr,
+            start_new_session=True)
+
+    def wait_ready(self, timeout_s: float = 180) -> bool:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end and self.proc.poll() is None:
+            self._notify.settimeout(1.0)
+            try:
+                if b"READY=1" in self._notify.recv(4096).split(b"\n"):
+                    return True
+            except TimeoutError:
+                continue
+        return False
+
+    def children(self) -> list[int]:
+        """Pids of the gateway's child processes (workers, multiprocessing's tracker)."""
+        out: list[int] = []
+        for task in Path(f"/proc/{self.proc.pid}/task").iterdir():
+            with contextlib.suppress(OSError):
+                out += [int(p) for p in (task / "children").read_text().split()]
+        return out
+
+    def close(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(10)
+        self._notify.close()
+        self._stderr.close()
+
+
+def _gone(pid: int) -> bool:
+    """No such process, or a zombie (dead, waiting for whoever adopted it to reap it)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+def test_workers_die_with_a_killed_gateway(tmp_path):
+    run = GatewayRun(tmp_path)
+    try:
+        assert run.wait_ready(), run.stderr_path.read_text()
+        workers = run.children()
+        assert len(workers) >= 2, workers               # the worker and its warm spare
+        os.kill(run.proc.pid, signal.SIGKILL)
+        run.proc.wait(10)
+        assert _wait(lambda: all(_gone(p) for p in workers), 10), \
+            [p for p in workers if not _gone(p)]
+    finally:
+        run.close()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_to_the_process_group_stops_cleanly_with_a_final_checkpoint(tmp_path, sig):
+    """Ctrl-C in a terminal (SIGINT to the foreground process group), or ``kill -TERM
+    -PGID``: the workers get it too, ignore it, and the parent stops them as for SIGTERM
+    to itself alone: exit 0, no traceback, the final checkpoint written."""
+    run = GatewayRun(tmp_path)
+    try:
+        assert run.wait_ready(), run.stderr_path.read_text()
+        workers = run.children()
+        assert not (run.state / "checkpoint.bin").exists()  # no data yet: none periodic
+        os.killpg(run.proc.pid, sig)
+        assert run.proc.wait(15) == 0
+        stderr = run.stderr_path.read_text()
+        assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+        assert (run.state / "checkpoint.bin").stat().st_size > 0
+        assert _wait(lambda: all(_gone(p) for p in workers), 10)
+    finally:
+        run.close()

@@ -79,7 +79,7 @@ def test_rx_horizon_is_the_newest_frame_read_then_wall_time_after_silence():
 def test_a_receive_thread_behind_the_kernel_loses_no_data(tmp_path, monkeypatch):
     frames = _frames(2.0)
     bus = LaggingBus(frames, 0.0002)
-    monkeypatch.setattr(gateway.service, "open_bus", lambda spec: bus)
+    monkeypatch.setattr(gateway.service, "open_bus", lambda spec, **kwargs: bus)
     cfg = with_overrides(Config(), {"bus.interface": "virtual", "bus.channel": "unused",
                                     "state.directory": str(tmp_path / "state"),
                                     "estimator.particles": 16})

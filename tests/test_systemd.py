@@ -65,3 +65,35 @@ def test_network_files_parse():
     can0.optionxform = str  # type: ignore[assignment,method-assign]
     can0.read_string((UNITS / "80-can0.network").read_text())
     assert can0["CAN"]["BitRate"] == "1M" and "RestartSec" in can0["CAN"]
+
+
+def _syscalls(group: str) -> set[str]:
+    """The syscalls of one SystemCallFilter item (a @group, expanded by systemd, or a name)."""
+    if not group.startswith("@"):
+        return {group}
+    out = subprocess.run([ANALYZE, "syscall-filter", "--no-pager", group], capture_output=True,
+                         text=True, timeout=60, check=True).stdout
+    names: set[str] = set()
+    for line in out.splitlines()[1:]:
+        word = line.strip()
+        if word and not word.startswith("#"):
+            names |= _syscalls(word)
+    return names
+
+
+def test_the_seccomp_filter_lets_the_worker_lower_its_priority_and_nothing_more():
+    """systemd's rule: the first SystemCallFilter= line is an allow list; later ``~`` lines
+    remove from it and plain lines add back, in order. os.nice is getpriority +
+    setpriority on x86-64 (nice(2) elsewhere); no other @resources call is allowed."""
+    lines = [line.split("=", 1)[1].split() for line in
+             (UNITS / "railgw.service").read_text().splitlines()
+             if line.startswith("SystemCallFilter=")]
+    assert lines[0][0] != "~", "expected an allow list first"
+    allowed: set[str] = set()
+    for k, items in enumerate(lines):
+        deny = items[0].startswith("~")
+        names = set().union(*(_syscalls(i.lstrip("~")) for i in items))
+        allowed = allowed - names if deny and k else allowed | names
+    assert {"setpriority", "getpriority", "nice"} <= allowed
+    assert not (_syscalls("@resources") - {"setpriority", "nice"}) & allowed
+    assert not {"sched_setscheduler", "sched_setattr", "setrlimit"} & allowed
