@@ -89,11 +89,12 @@ class StateConfig:
 
 @dataclass(frozen=True)
 class SerialConfig:
-    """The fitters' maintenance port ('' disables it)."""
+    """The fitters' maintenance port ('' disables it). ``pin_hash``: the console PIN as
+    ``railgw console hash-pin`` makes it (salted scrypt; '' disables writes)."""
 
     device: str = ""
     baudrate: int = 115200
-    pin_sha256: str = ""
+    pin_hash: str = ""
 
 
 @dataclass(frozen=True)
@@ -227,8 +228,8 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     ("state", "directory"): Text(1, 4096, what="a directory path"),
     ("serial", "device"): Text(0, 4096, what="a device path"),
     ("serial", "baudrate"): Range(50, 4_000_000),
-    ("serial", "pin_sha256"): Text(0, 64, r"(|[0-9a-fA-F]{64})",
-                                   what="'' or 64 hex digits (SHA-256)"),
+    # '' or scrypt$N$r$p$salt$hash (gateway.console.pin checks the fields, below)
+    ("serial", "pin_hash"): Text(0, 256, what="a PIN hash"),
 }
 """The checked domain of every key (a test asserts that every key has one)."""
 
@@ -369,6 +370,10 @@ def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
         fields = {f.name for f in dataclasses.fields(defaults)}
         values = {}
         for key, value in table.items():
+            if (name, key) == ("serial", "pin_sha256"):
+                raise fail(name, key, "expected pin_hash, a salted PIN hash, got the old "
+                                      "unsalted pin_sha256: make one with 'railgw console "
+                                      "hash-pin' and replace this line by pin_hash = \"...\"")
             if key not in fields:
                 raise fail(name, key, f"expected a key from {sorted(fields)}, "
                                       f"got {_describe(key)}")
@@ -377,6 +382,9 @@ def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
                 raise fail(name, key, f"expected {type(default).__name__}, "
                                       f"got {type(value).__name__} {_describe(value)}")
             problem = check_value(name, key, value)
+            if not problem and (name, key) == ("serial", "pin_hash"):
+                from gateway.console.pin import pin_hash_problem  # the format has one home
+                problem = pin_hash_problem(value)
             if problem:
                 raise fail(name, key, problem)
             values[key] = float(value) if isinstance(default, float) else value

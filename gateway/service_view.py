@@ -10,24 +10,34 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import math
 import queue
 import threading
 import time
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from gateway import __version__
 from gateway.config import as_toml
-from gateway.console.view import alert_view, estimates_view, history_row
-from gateway.errors import InputError
+from gateway.console.session import LockoutState
+from gateway.console.view import (
+    AckResult,
+    BaselineResult,
+    ThresholdResult,
+    estimates_view,
+    history_row,
+)
+from gateway.errors import InputError, StateError
 from gateway.model import PARAM_NAMES
 from gateway.records import Alert, Severity
 
 if TYPE_CHECKING:
     from gateway.service import Service
 
+log = logging.getLogger(__name__)
 WRITE_TIMEOUT_S = 5.0
+T = TypeVar("T")
 
 
 class LogTail(logging.Handler):
@@ -52,7 +62,7 @@ class ServiceViewImpl:
         self._service = service
         self._lock = threading.Lock()
         self._snap: dict[str, Any] = {}
-        self._requests: queue.Queue[tuple[Callable[[], dict[str, Any]], queue.Queue[Any]]] = \
+        self._requests: queue.Queue[tuple[Callable[[], Any], queue.Queue[Any]]] = \
             queue.Queue()
         self.log_tail = LogTail()
         logging.getLogger().addHandler(self.log_tail)
@@ -113,7 +123,7 @@ class ServiceViewImpl:
             except Exception as err:  # noqa: BLE001 - handed back to the console thread
                 reply.put(("err", err))
 
-    def _call(self, action: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    def _call(self, action: Callable[[], T]) -> T:
         reply: queue.Queue[Any] = queue.Queue(maxsize=1)
         self._requests.put((action, reply))
         try:
@@ -123,7 +133,7 @@ class ServiceViewImpl:
                 from None
         if kind == "err":
             raise value
-        return value
+        return cast(T, value)
 
     def _get(self, key: str, default: Any) -> Any:
         with self._lock:
@@ -169,19 +179,19 @@ class ServiceViewImpl:
     def log_lines(self, n: int) -> list[str]:
         return list(self.log_tail.lines)[-max(0, n):]
 
-    def acknowledge(self, alert_key: int | str) -> dict[str, Any]:
-        def act() -> dict[str, Any]:
+    def acknowledge(self, alert_key: int | str) -> AckResult:
+        def act() -> AckResult:
             s = self._service
             alert = s.policy.acknowledge(alert_key, s.data_time_s())
             s.on_alert(alert)
-            return {"acknowledged": alert_view(alert)}
+            return AckResult(alert)
         return self._call(act)
 
-    def baseline_reset(self, component: str) -> dict[str, Any]:
+    def baseline_reset(self, component: str) -> BaselineResult:
         if component not in PARAM_NAMES:
             raise InputError(f"expected a parameter from {list(PARAM_NAMES)}, got {component!r}")
 
-        def act() -> dict[str, Any]:
+        def act() -> BaselineResult:
             s = self._service
             t = s.data_time_s()
             cleared = s.policy.reset_baseline(component, t)
@@ -191,24 +201,41 @@ class ServiceViewImpl:
                 s.pipeline.worker.control("reset_parameter", PARAM_NAMES.index(component))
             s.store.append_baseline(component, t, note="baseline reset from the console")
             s.store.save_policy(s.policy.snapshot())
-            return {"parameter": component, "t_s": t, "cleared_alerts": len(cleared),
-                    "estimator": "re-learning this parameter from the prior"}
+            return BaselineResult(component, t, tuple(cleared))
         return self._call(act)
 
     def set_threshold(self, parameter: str, severity: Severity,
-                      value_rel: float) -> dict[str, Any]:
-        def act() -> dict[str, Any]:
+                      value_rel: float) -> ThresholdResult:
+        def act() -> ThresholdResult:
             s = self._service
             s.policy.set_threshold(parameter, severity, value_rel)
             s.store.save_policy(s.policy.snapshot())
-            return {"parameter": parameter, "severity": severity.name, "value_rel": value_rel}
+            pp = s.policy.config.params[parameter]
+            return ThresholdResult(parameter, "low" if value_rel < 1 else "high", severity,
+                                   value_rel, pp.low_rel, pp.high_rel)
         return self._call(act)
 
-    def audit(self, entry: dict[str, Any]) -> None:
+    def audit(self, entry: dict[str, Any]) -> bool:
+        """Persist one audit entry (fsynced); False if it could not be written."""
         detail = json.dumps({k: v for k, v in entry.items() if k not in ("command",)},
                             default=str, sort_keys=True)
-        self._service.store.append_audit(str(entry.get("command", "")),
-                                         entry.get("result") == "ok", detail)
+        return self._service.store.append_audit(str(entry.get("command", "")),
+                                                entry.get("result") == "ok", detail)
+
+    def load_lockout(self) -> LockoutState | None:
+        """The persisted PIN lockout; an unusable file locks (fail closed)."""
+        try:
+            saved = self._service.store.load_console_lockout()
+            if saved is None:
+                return None
+            return LockoutState(int(saved["failures"]), float(saved["locked_until_unix_s"]))
+        except (StateError, KeyError, TypeError, ValueError, OverflowError) as err:
+            log.error("console: PIN lockout state unusable (%s); login locked", err)
+            return LockoutState(0, math.inf)
+
+    def save_lockout(self, state: LockoutState) -> bool:
+        return self._service.store.save_console_lockout(
+            {"failures": state.failures, "locked_until_unix_s": state.locked_until_unix_s})
 
     def close(self) -> None:
         logging.getLogger().removeHandler(self.log_tail)

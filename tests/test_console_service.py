@@ -2,20 +2,20 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import threading
 import time
 from pathlib import Path
 
 import pytest
+from fakes.ptyterm import PtyTerminal
 
 from firmware_sim.output import send_live
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from gateway.canbus import open_node_bus
 from gateway.config import Config, with_overrides
-from gateway.console.ptyterm import PtyTerminal
+from gateway.console.pin import hash_pin
 from gateway.service import Service
 
 PIN = "482913"
@@ -29,7 +29,7 @@ def rig(tmp_path: Path):
             "bus.interface": "virtual", "bus.channel": channel,
             "state.directory": str(tmp_path / "state"), "estimator.particles": 200,
             "serial.device": str(term.path),
-            "serial.pin_sha256": hashlib.sha256(PIN.encode()).hexdigest()})
+            "serial.pin_hash": hash_pin(PIN)})
         service = Service(cfg)
         thread = threading.Thread(target=service.run, daemon=True)
         thread.start()

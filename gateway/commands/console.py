@@ -6,6 +6,10 @@ JSON mode, a complete JSON line) has arrived. The PIN is read without echo. The
 console's own echo of the sent line is removed. ``exit``/``quit`` or Ctrl-D leave;
 Ctrl-C cancels the line being typed. ``python -m serial.tools.miniterm PORT
 115200`` works too (docs/console.md).
+
+``gateway console hash-pin`` makes the ``[serial] pin_hash`` line for the gateway's config
+instead: it reads the PIN without echo (twice, from a terminal; one line from a pipe)
+and prints the salted scrypt hash (``gateway.console.pin``).
 """
 
 from __future__ import annotations
@@ -15,11 +19,13 @@ import contextlib
 import getpass
 import json
 import re
+import sys
 import time
 from typing import Protocol
 
 import serial
 
+from gateway.console.pin import hash_pin, pin_problem
 from gateway.errors import InputError
 
 PROMPT_AT_END = re.compile(rb"(railgw[>#] |PIN: )$")
@@ -88,15 +94,41 @@ class ConsoleClient:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("console", help="talk to a gateway's serial maintenance console",
                        description="Interactive client for the gateway's maintenance port "
-                                   "(line editing and history on this side).")
-    p.add_argument("port", metavar="PORT", help="serial device, e.g. /dev/ttyUSB0 or COM3")
+                                   "(line editing and history on this side). "
+                                   "'console hash-pin' prints a [serial] pin_hash for a PIN "
+                                   "read without echo.")
+    p.add_argument("port", metavar="PORT",
+                   help="serial device, e.g. /dev/ttyUSB0 or COM3; or 'hash-pin'")
     p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
     p.add_argument("--timeout", type=float, default=5.0,
                    help="seconds to wait for a reply (default 5)")
     p.set_defaults(func=run)
 
 
+def read_pin(stdin_is_tty: bool | None = None) -> str:
+    """The PIN: typed twice without echo on a terminal, else the first line of stdin."""
+    tty = sys.stdin.isatty() if stdin_is_tty is None else stdin_is_tty
+    if not tty:
+        line = sys.stdin.readline()
+        return line.rstrip("\r\n")
+    pin = getpass.getpass("new console PIN: ")
+    problem = pin_problem(pin)
+    if problem:
+        raise InputError(problem)
+    if getpass.getpass("the same PIN again: ") != pin:
+        raise InputError("expected the same PIN twice, got two different ones")
+    return pin
+
+
+def hash_pin_command() -> int:
+    """``console hash-pin``: print the PIN's hash (``scrypt$...``) for ``[serial] pin_hash``."""
+    print(hash_pin(read_pin()))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.port == "hash-pin":
+        return hash_pin_command()
     with contextlib.suppress(ImportError):  # Windows without pyreadline: plain input()
         import readline  # noqa: F401  (line editing and history for input())
     try:

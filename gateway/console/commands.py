@@ -21,7 +21,7 @@ import serial
 
 from gateway import __version__
 from gateway.console import render
-from gateway.console.reply import Reply, jsonable
+from gateway.console.reply import Reply
 from gateway.console.session import ConsoleLimits, PinGuard, Session
 from gateway.console.view import PARAMS, ServiceView, alert_view, resolve_parameter
 from gateway.errors import InputError
@@ -30,7 +30,13 @@ from gateway.records import Severity
 HISTORY_JSON_ROWS = 72
 """History rows sent in JSON mode at most (evenly thinned; events always kept)."""
 _NAME = re.compile(r"^[A-Za-z0-9._-]{1,32}$")
-_PIN_LINE = re.compile(r"^(\s*pin_sha256\s*=\s*).*$", re.MULTILINE)
+_PIN_LINE = re.compile(r"^(\s*pin_hash\s*=\s*).*$", re.MULTILINE)
+THRESHOLD_MIN_REL = 0.10
+"""Lowest threshold a fitter may set: a damper at 10 % of nominal has failed long before
+(the default ALARM is at 35 %; below this an alarm could never fire in practice)."""
+THRESHOLD_MAX_REL = 5.0
+"""Highest threshold: 5 x nominal (conicity 0.75) is past any wheel profile (the default
+conicity ALARM is at 2.67 x, 0.40)."""
 
 
 class UsageError(InputError):
@@ -202,7 +208,7 @@ def _login(ctx: Context, args: list[str]) -> Reply:
         raise UsageError(f"expected 'login [name]' (name: up to 32 of A-Z a-z 0-9 . _ -), "
                          f"got {' '.join(args)!r}")
     if not ctx.guard.enabled:
-        return Reply.fail("login", "login disabled: no PIN configured ([serial] pin_sha256)")
+        return Reply.fail("login", "login disabled: no PIN configured ([serial] pin_hash)")
     left = ctx.guard.locked_for_s()
     if left > 0:
         return Reply.fail("login", f"console locked after failed PINs; try again in "
@@ -251,11 +257,9 @@ def _ack(ctx: Context, args: list[str]) -> Reply:
     if len(args) != 1:
         raise UsageError(f"expected 'ack <#seq|component>', got {' '.join(args)!r}")
     result = ctx.view.acknowledge(parse_alert_key(args[0]))
-    alert = result.get("alert") if isinstance(result, dict) else None
-    text = (f"acknowledged: #{alert.get('seq')} {_label(str(alert.get('parameter')))} "
-            f"{alert.get('severity')}" if isinstance(alert, dict)
-            else "acknowledged\n" + render.generic(result))
-    return Reply(True, "ack", text=text, data=jsonable(result))
+    alert = result.alert
+    text = f"acknowledged: #{alert.seq} {_label(alert.parameter)} {alert.severity.name}"
+    return Reply(True, "ack", text=text, data=result.to_json())
 
 
 def _baseline(ctx: Context, args: list[str]) -> Reply:
@@ -263,10 +267,10 @@ def _baseline(ctx: Context, args: list[str]) -> Reply:
         raise UsageError(f"expected 'baseline reset <component>', got {' '.join(args)!r}")
     parameter = _resolve(args[1])
     result = ctx.view.baseline_reset(parameter)
-    cleared = [e.get("seq") for e in (result.get("events") or []) if isinstance(e, dict)]
+    cleared = [a.seq for a in result.cleared]
     text = (f"baseline reset: {_label(parameter)} re-learns from its prior"
             + (f"; cleared alert {', '.join(f'#{s}' for s in cleared)}" if cleared else ""))
-    return Reply(True, "baseline", text=text, data=jsonable(result))
+    return Reply(True, "baseline", text=text, data=result.to_json())
 
 
 _SEVERITIES = {"advisory": Severity.ADVISORY, "adv": Severity.ADVISORY,
@@ -275,15 +279,17 @@ _SEVERITIES = {"advisory": Severity.ADVISORY, "adv": Severity.ADVISORY,
 
 
 def parse_threshold(text: str) -> float:
-    """``0.5`` or ``50%`` -> 0.5 (relative to nominal, finite, > 0)."""
+    """``0.5`` or ``50%`` -> 0.5 (relative to nominal, within
+    [:data:`THRESHOLD_MIN_REL`, :data:`THRESHOLD_MAX_REL`])."""
     t = text.strip()
     try:
         value = float(t[:-1]) / 100.0 if t.endswith("%") else float(t)
     except ValueError:
         value = math.nan
-    if not (math.isfinite(value) and 0 < value <= 100):
-        raise UsageError(f"expected a threshold relative to nominal like 0.5 or 50%, "
-                         f"got {text!r}")
+    if not (math.isfinite(value) and THRESHOLD_MIN_REL <= value <= THRESHOLD_MAX_REL):
+        raise UsageError(f"expected a threshold from {THRESHOLD_MIN_REL * 100:g} % to "
+                         f"{THRESHOLD_MAX_REL * 100:g} % of nominal ({THRESHOLD_MIN_REL:g} "
+                         f"to {THRESHOLD_MAX_REL:g}), got {text[:16]!r}")
     return value
 
 
@@ -297,10 +303,9 @@ def _threshold(ctx: Context, args: list[str]) -> Reply:
         raise UsageError(f"expected a severity from advisory, warning, alarm, got {args[2]!r}")
     value = parse_threshold(args[3])
     result = ctx.view.set_threshold(parameter, severity, value)
-    side = result.get("side", "low" if value < 1 else "high")
-    text = (f"threshold set: {_label(parameter)} {side}-side {severity.name} at "
+    text = (f"threshold set: {_label(parameter)} {result.side}-side {severity.name} at "
             f"{value * 100:g} % of nominal")
-    return Reply(True, "threshold", text=text, data=jsonable(result))
+    return Reply(True, "threshold", text=text, data=result.to_json())
 
 
 def _cmd(name: str, usage: str, summary: str, detail: str, handler: Handler,
@@ -322,7 +327,7 @@ COMMANDS: dict[str, Command] = dict([
          "Each alert has a sequence number #seq for 'ack'.", _alerts),
     _cmd("history", "history [hours|Nd]", "estimates over hours or days",
          "From the persisted history; default 24 h; e.g. 'history 6', 'history 7d'.\n"
-         "Baseline resets and threshold changes are listed as events (**).", _history),
+         "Baseline resets are listed as events (**).", _history),
     _cmd("sensors", "sensors", "sensor rates, errors, timeouts, values",
          "rate/expected in Hz; rejected = frames dropped by validation (crc, counter,\n"
          "range, ...); lost = frames missing from the alive counter; t/o = timeouts.",
@@ -349,7 +354,8 @@ COMMANDS: dict[str, Command] = dict([
     _cmd("threshold", "threshold set <comp> <sev> <value>", "change an alert threshold",
          "Severity: advisory, warning or alarm. Value relative to nominal, 0.5 or 50%:\n"
          "below 1 judges the low side (weak damper), above 1 the high side (worn\n"
-         "wheels). e.g. 'threshold set csy warning 50%'. Recorded in the audit log.",
+         "wheels); from 10% to 500%. e.g. 'threshold set csy warning 50%'.\n"
+         "Recorded in the audit log.",
          _threshold, True),
     _cmd("mode", "mode json|text", "JSON replies for scripts, or text",
          "In json mode every reply is one JSON object on one line, no prompt, no echo:\n"

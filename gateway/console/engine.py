@@ -34,12 +34,14 @@ log = logging.getLogger(__name__)
 PROMPT = b"railgw> "
 PROMPT_LOGGED_IN = b"railgw# "
 PROMPT_PIN = b"PIN: "
+AUDIT_REFUSAL = ("refused: the audit log cannot be written (state directory: see 'log'); "
+                 "write commands are off until it works")
 
 
 class Console:
     """The maintenance console for one port; feed it bytes, write back what it returns."""
 
-    def __init__(self, view: ServiceView, *, pin_sha256: str = "",
+    def __init__(self, view: ServiceView, *, pin_hash: str = "",
                  limits: ConsoleLimits | None = None,
                  clock: Callable[[], float] = time.monotonic,
                  wall: Callable[[], float] = time.time, port_name: str = "",
@@ -50,9 +52,10 @@ class Console:
         self._wall = wall
         self.port_name = port_name
         self._echo_default = echo
-        self.guard = PinGuard(pin_sha256, self.limits, clock)
+        self.guard = PinGuard(pin_hash, self.limits, clock, wall=wall, persist=view)
         if self.guard.configured_but_invalid:
-            log.warning("console: [serial] pin_sha256 is not 64 hex digits; login disabled")
+            log.warning("console: [serial] pin_hash unusable (%s); login disabled",
+                        self.guard.problem)
         self._bucket = TokenBucket(self.limits.rate_per_s, self.limits.burst, clock)
         self._lines = LineDiscipline(self.limits.max_line_bytes, echo=echo)
         self._sessions = 0
@@ -84,6 +87,7 @@ class Console:
                      self.session.number, self.session.user, reason or "disconnect")
         self.session.user = None
         self.session.pin_pending_since = None
+        self.session.pin_shadow = False
         self._lines.reset()
 
     def prompt(self) -> bytes:
@@ -98,7 +102,7 @@ class Console:
     def _sync(self) -> None:
         s = self.session
         self._lines.echo = s.echo and not s.json
-        self._lines.secret = s.pin_pending_since is not None
+        self._lines.secret = s.pin_pending_since is not None or s.pin_shadow
 
     # -- input -----------------------------------------------------------------------------
     def feed(self, data: bytes) -> bytes:
@@ -116,6 +120,7 @@ class Console:
         s = self.session
         note = ""
         if s.pin_expired():
+            s.pin_shadow = True
             note = "PIN entry timed out; type 'login' again"
         elif s.idle_expired():
             note = f"session idle for {self.limits.idle_timeout_s:g} s: logged out"
@@ -150,6 +155,7 @@ class Console:
             if self._limited:
                 return b""
             self._limited = True
+            s.pin_shadow = s.pin_shadow or s.pin_pending_since is not None
             s.pin_pending_since = None
             return self._encode(Reply.fail(
                 "?", f"rate limit: expected at most {self.limits.rate_per_s:g} commands "
@@ -165,16 +171,24 @@ class Console:
                 notice = to_wire(f"(session idle for {self.limits.idle_timeout_s:g} s: "
                                  f"logged out)\n")
         if isinstance(event, TooLong):
+            s.pin_shadow = s.pin_shadow or s.pin_pending_since is not None
             s.pin_pending_since = None
             return notice + self._encode(Reply.fail(
                 "?", f"line too long: expected at most {self.limits.max_line_bytes} "
                      f"bytes, got {event.length}; line discarded")) + self.prompt()
         if s.pin_pending_since is not None:
             return notice + self._pin(event.text) + self.prompt()
+        shadow, s.pin_shadow = s.pin_shadow, False
         s.touch()
         words = event.text.split()
         if not words:
             return b"" if s.json else self.prompt()
+        if shadow and words[0].lower() not in COMMANDS and words[0] != "?":
+            # The line after a refused login may well be the PIN: neither echoed (the
+            # line discipline was secret) nor repeated, and not run.
+            return notice + self._encode(Reply.fail(
+                "?", "line discarded: login was refused, and this may have been the PIN "
+                     "(not shown); type 'login' again")) + self.prompt()
         return notice + self._encode(self._command(words)) + self.prompt()
 
     def _encode(self, reply: Reply) -> bytes:
@@ -194,12 +208,16 @@ class Console:
             name = "help"
         cmd = COMMANDS.get(name)
         if cmd is None:
-            return Reply.fail(name[:32], f"unknown command {words[0][:32]!r}; type 'help'")
+            # Never repeat an unknown word: it may be a PIN typed at the wrong moment.
+            return Reply.fail("?", "unknown command (not repeated, it may have been a PIN); "
+                                   "type 'help'")
         if cmd.write:
             refusal = self._refusal()
             if refusal:
                 self._audit(name, args, "refused", refusal)
                 return Reply.fail(name, refusal)
+            if not self._audit(name, args, "attempt", ""):
+                return Reply.fail(name, AUDIT_REFUSAL)
         try:
             reply = cmd.handler(self._context(), args)
         except InputError as err:
@@ -220,6 +238,7 @@ class Console:
         if cmd.write:
             self._audit(name, args, "ok" if reply.ok else "rejected", result_detail(reply))
         elif name == "login" and not reply.ok:
+            self.session.pin_shadow = True
             self._audit("login", args, "locked" if "locked" in reply.error else "refused",
                         reply.error, who=args[0] if args else None)
         return reply
@@ -244,28 +263,38 @@ class Console:
         if not pin:
             return self._encode(Reply.fail("login", "login cancelled (empty PIN)"))
         result = self.guard.check(pin)
+        if result.ok and not self._audit("login", [user], "ok", "logged in", who=user):
+            s.pin_shadow = True
+            log.error("console: login as %s refused: the audit log cannot be written", user)
+            return self._encode(Reply.fail("login", AUDIT_REFUSAL))
         if result.ok:
             s.user = user
             s.touch()
-            self._audit("login", [user], "ok", "logged in", who=user)
             log.info("console: %s logged in (session %d)", user, s.number)
             return self._encode(Reply(True, "login", text=f"logged in as {user}; "
                                       f"write commands enabled ('logout' to end)",
                                       data={"user": user}))
         outcome = "locked" if result.locked_s > 0 else "failed"
+        s.pin_shadow = True
         self._audit("login", [user], outcome, result.message, who=user)
         log.warning("console: login as %s %s: %s", user, outcome, result.message)
         extra: dict[str, Any] = {"locked_s": result.locked_s} if result.locked_s else {}
         return self._encode(Reply.fail("login", result.message, **extra))
 
     def _audit(self, command: str, args: list[str], result: str, detail: Any,
-               who: str | None = None) -> None:
+               who: str | None = None) -> bool:
+        """Hand one entry to the service's audit log; False (logged) if it was not
+        written: the caller then refuses (fail closed)."""
         now = self._wall()
         entry = {"time": datetime.fromtimestamp(now, UTC).isoformat(timespec="seconds"),
                  "t_unix_s": now, "who": who or self.session.user or "-",
                  "port": self.port_name, "session": self.session.number, "command": command,
                  "args": list(args), "result": result, "detail": jsonable(detail)}
         try:
-            self.view.audit(entry)
+            written = bool(self.view.audit(entry))
         except Exception:
             log.exception("console: audit of %s (%s) failed", command, result)
+            return False
+        if not written:
+            log.error("console: audit of %s (%s) could not be written", command, result)
+        return written

@@ -3,9 +3,14 @@
 Only printable ASCII (0x20..0x7E) enters a line; TAB becomes a space. CR, LF or CRLF
 end a line (an LF right after a CR is swallowed, even across reads). BS (0x08) and
 DEL (0x7F) erase one character; Ctrl-U erases the line; Ctrl-C cancels it. Escape
-sequences (ESC x, CSI ``ESC [ ... final``, SS3 ``ESC O x``: arrow keys, function keys)
-and every other control or high byte (0x80..0xFF, NUL) are dropped. A line longer than
-``max_line_bytes`` is discarded up to its end and reported as :class:`TooLong`.
+sequences are dropped whole, payload included (ECMA-48): ``ESC x``, ``ESC`` with
+intermediates (``ESC ( B``), CSI ``ESC [ ... final`` and SS3 ``ESC O x`` (arrow and
+function keys), and the string sequences OSC ``ESC ]``, DCS ``ESC P``, SOS ``ESC X``,
+PM ``ESC ^`` and APC ``ESC _``, which run to BEL or ST (``ESC`` + backslash); their 8-bit forms
+(0x9B CSI, 0x9D OSC, 0x90 DCS, 0x98, 0x9E, 0x9F) too. CAN/SUB (0x18, 0x1A) or a line
+end abandons an unfinished sequence. Every other control or high byte (0x80..0xFF,
+NUL) is dropped. A line longer than ``max_line_bytes`` is discarded up to its end and
+reported as :class:`TooLong`.
 
 Pure state machine: no I/O, no clock. The state is the partial line and a few flags.
 """
@@ -16,9 +21,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 CR, LF, BS, DEL, TAB, ESC = 0x0D, 0x0A, 0x08, 0x7F, 0x09, 0x1B
-CTRL_C, CTRL_U = 0x03, 0x15
-MAX_ESCAPE_BYTES = 16
-"""An escape sequence longer than this is abandoned (garbage must not stall input)."""
+CTRL_C, CTRL_U, BEL, CAN, SUB = 0x03, 0x15, 0x07, 0x18, 0x1A
+STRING_INTRODUCERS = frozenset(b"]PX^_")
+"""After ESC: OSC, DCS, SOS, PM, APC, whose payload runs to BEL or ST."""
+C1_STRING = frozenset((0x90, 0x98, 0x9D, 0x9E, 0x9F))
+C1_CSI, C1_ST = 0x9B, 0x9C
 ERASE = b"\b \b"
 
 
@@ -64,9 +71,7 @@ class LineDiscipline:
         self._buf = bytearray()
         self._overflow = 0
         self._after_cr = False
-        self._escape = 0  # 0: none; else bytes seen in the current escape sequence
-        self._csi = False
-        self._ss3 = False
+        self._esc = ""  # "", "esc", "nf" (intermediates), "csi", "ss3", "str", "str-esc"
 
     def reset(self) -> None:
         """Forget the partial line and any escape sequence (a new connection)."""
@@ -88,27 +93,58 @@ class LineDiscipline:
         return len(self._buf) + self._overflow
 
     def _end_escape(self) -> None:
-        self._escape, self._csi, self._ss3 = 0, False, False
+        self._esc = ""
 
     def _in_escape(self, b: int) -> bool:
-        """Consume ``b`` as part of an escape sequence; False when it is not one."""
-        if not self._escape:
-            if b != ESC:
-                return False
-            self._escape = 1
+        """Consume ``b`` as part of an escape sequence; False when it is not one (then
+        ``b`` is handled as an ordinary byte)."""
+        state = self._esc
+        if b in (CAN, SUB) and state:
+            self._esc = ""
             return True
-        self._escape += 1
-        if self._escape > MAX_ESCAPE_BYTES:
-            self._end_escape()
-        elif self._escape == 2:
-            if b == ord("["):
-                self._csi = True
-            elif b == ord("O"):
-                self._ss3 = True
+        if not state:
+            if b == ESC:
+                self._esc = "esc"
+            elif b == C1_CSI:
+                self._esc = "csi"
+            elif b in C1_STRING:
+                self._esc = "str"
             else:
-                self._end_escape()
-        elif self._ss3 or not 0x20 <= b <= 0x3F:
-            self._end_escape()  # SS3 takes one byte; CSI ends at its final byte 0x40..0x7E
+                return False
+            return True
+        if state == "esc":
+            if b in STRING_INTRODUCERS:
+                self._esc = "str"
+            elif b == ord("["):
+                self._esc = "csi"
+            elif b == ord("O"):
+                self._esc = "ss3"
+            elif 0x20 <= b <= 0x2F:
+                self._esc = "nf"
+            elif b == ESC:
+                self._esc = "esc"
+            elif b < 0x20:
+                self._esc = ""
+                return False  # a control byte aborts the sequence and acts as itself
+            else:
+                self._esc = ""  # ESC x: two bytes
+            return True
+        if state in ("csi", "nf"):
+            params = range(0x20, 0x40) if state == "csi" else range(0x20, 0x30)
+            if b in params:
+                return True
+            self._esc = ""
+            return 0x40 <= b <= 0x7E if state == "csi" else 0x30 <= b <= 0x7E
+        if state == "ss3":
+            self._esc = ""
+            return 0x20 <= b <= 0x7E
+        # string sequences: everything up to BEL or ST (ESC \ or 0x9C) is payload
+        if b in (BEL, C1_ST):
+            self._esc = ""
+        elif state == "str-esc":
+            self._esc = "" if b == ord("\\") else "str"
+        elif b == ESC:
+            self._esc = "str-esc"
         return True
 
     def feed(self, data: bytes, handle: Callable[[Event], bytes]) -> bytes:

@@ -249,7 +249,7 @@ def console_port(view: ServiceView, serial_cfg: SerialConfig, *,
     device is '' (console disabled)."""
     if not serial_cfg.device:
         return None
-    console = Console(view, pin_sha256=serial_cfg.pin_sha256, limits=limits, clock=clock,
+    console = Console(view, pin_hash=serial_cfg.pin_hash, limits=limits, clock=clock,
                       wall=wall, port_name=serial_cfg.device)
     return ConsolePort(console, serial_cfg.device, baudrate=serial_cfg.baudrate,
                        reopen_min_s=reopen_min_s, reopen_max_s=reopen_max_s)

@@ -3,24 +3,28 @@
 Everything here takes its time from an injected monotonic clock (``clock() -> s``), so
 the tests step time instead of sleeping. Two lifetimes:
 
-- :class:`PinGuard` lives as long as the console: failed attempts and the lockout
-  survive a cable pull (re-plugging must not reset a brute-force counter);
+- :class:`PinGuard` lives as long as the console and persists through the service's
+  state directory: failed attempts and the lockout survive a cable pull and a restart
+  (neither may reset a brute-force counter);
 - :class:`Session` lives for one connection: login state, mode, idle timer.
 """
 
 from __future__ import annotations
 
-import hashlib
-import hmac
+import logging
 import math
-import re
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
+
+from gateway.console.pin import PinHash, parse_pin_hash, verify_pin
+from gateway.errors import InputError
+
+log = logging.getLogger(__name__)
 
 Clock = Callable[[], float]
 """Monotonic seconds."""
-
-_HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 
 @dataclass(frozen=True)
@@ -56,16 +60,6 @@ class ConsoleLimits:
             raise ValueError(f"expected reply_max_bytes >= 512, got {self.reply_max_bytes}")
 
 
-def pin_hash(pin: str) -> str:
-    """SHA-256 hex digest of a PIN, as ``[serial] pin_sha256`` stores it."""
-    return hashlib.sha256(pin.encode("utf-8")).hexdigest()
-
-
-def valid_pin_hash(pin_sha256: str) -> bool:
-    """True for 64 lower- or upper-case hex digits."""
-    return bool(_HEX64.match(pin_sha256.strip().lower()))
-
-
 class TokenBucket:
     """Rate limit: ``take()`` is True while tokens last; they refill at ``rate_per_s``."""
 
@@ -95,47 +89,94 @@ class PinResult:
     locked_s: float = 0.0
 
 
-class PinGuard:
-    """Checks PINs against the configured SHA-256 (constant time) and enforces the lockout."""
+@dataclass(frozen=True)
+class LockoutState:
+    """What survives a restart: consecutive failed PINs and the lockout end (Unix s)."""
 
-    def __init__(self, pin_sha256: str, limits: ConsoleLimits, clock: Clock) -> None:
-        digest = pin_sha256.strip().lower()
-        self._digest = digest if valid_pin_hash(digest) else ""
-        self.configured_but_invalid = bool(pin_sha256.strip()) and not self._digest
+    failures: int = 0
+    locked_until_unix_s: float = 0.0
+
+
+class LockoutStore(Protocol):
+    """Where the lockout persists (the service's state directory)."""
+
+    def load_lockout(self) -> LockoutState | None: ...
+
+    def save_lockout(self, state: LockoutState) -> bool: ...
+
+
+class PinGuard:
+    """Checks PINs against the configured salted hash and enforces the lockout.
+
+    The failure count and the lockout are saved through ``persist`` at every change and
+    loaded at start, so neither a cable pull nor a service restart resets them. The
+    lockout end is stored as wall time (``wall``, Unix s) and never extends beyond
+    ``lockout_s`` from now when loaded (a clock stepped back cannot lock for ever).
+    """
+
+    def __init__(self, pin_hash: str, limits: ConsoleLimits, clock: Clock, *,
+                 wall: Clock = time.time, persist: LockoutStore | None = None) -> None:
+        self._stored: PinHash | None = None
+        self.problem = ""
+        if pin_hash.strip():
+            try:
+                self._stored = parse_pin_hash(pin_hash)
+            except InputError as err:
+                self.problem = str(err)
+        self.configured_but_invalid = bool(self.problem)
         self._limits = limits
         self._clock = clock
+        self._wall = wall
+        self._persist = persist
         self.failures = 0
         self._locked_until = -math.inf
+        saved = persist.load_lockout() if persist is not None else None
+        if saved is not None:
+            self.failures = max(0, min(int(saved.failures), limits.max_failures - 1))
+            left = min(saved.locked_until_unix_s - wall(), limits.lockout_s)
+            if left > 0:
+                self._locked_until = clock() + left
 
     @property
     def enabled(self) -> bool:
         """False when no (valid) PIN hash is configured: writes are then impossible."""
-        return bool(self._digest)
+        return self._stored is not None
 
     def locked_for_s(self) -> float:
         """Seconds of lockout left (0 when not locked)."""
         return max(0.0, self._locked_until - self._clock())
 
+    def _save(self) -> None:
+        if self._persist is None:
+            return
+        left = self.locked_for_s()
+        state = LockoutState(self.failures, self._wall() + left if left > 0 else 0.0)
+        if not self._persist.save_lockout(state):
+            log.error("console: the PIN lockout state could not be saved")
+
     def check(self, pin: str) -> PinResult:
-        """One attempt; the fifth consecutive failure starts the lockout."""
-        if not self.enabled:
-            return PinResult(False, "login disabled: no PIN configured ([serial] pin_sha256)")
+        """One attempt; the ``max_failures``-th consecutive failure starts the lockout."""
+        if self._stored is None:
+            return PinResult(False, "login disabled: no PIN configured ([serial] pin_hash)")
         left = self.locked_for_s()
         if left > 0:
             return PinResult(False, f"console locked after {self._limits.max_failures} "
                                     f"failed PINs; try again in {math.ceil(left)} s", left)
-        given = hashlib.sha256(pin.encode("utf-8")).hexdigest()
-        if hmac.compare_digest(given, self._digest):
-            self.failures = 0
+        if verify_pin(pin, self._stored):
+            if self.failures:
+                self.failures = 0
+                self._save()
             return PinResult(True, "PIN accepted")
         self.failures += 1
         if self.failures >= self._limits.max_failures:
             self.failures = 0
             self._locked_until = self._clock() + self._limits.lockout_s
+            self._save()
             return PinResult(False, f"wrong PIN; console locked for "
                                     f"{math.ceil(self._limits.lockout_s)} s after "
                                     f"{self._limits.max_failures} failed attempts",
                              self._limits.lockout_s)
+        self._save()
         left_tries = self._limits.max_failures - self.failures
         return PinResult(False, f"wrong PIN ({left_tries} attempt"
                                 f"{'s' if left_tries != 1 else ''} left before lockout)")
@@ -153,6 +194,9 @@ class Session:
         self.echo = echo
         self.user: str | None = None
         self.pin_pending_since: float | None = None
+        self.pin_shadow = False
+        """The next line may be a PIN typed after a refused login: not echoed, not run
+        unless it is a command, never repeated."""
         self.pending_user = ""
         self._last_s = clock()
 

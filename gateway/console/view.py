@@ -1,17 +1,19 @@
-"""The seam between the console and the service: the ServiceView protocol and its dict shapes.
+"""The seam between the console and the service: the ServiceView protocol and its shapes.
 
 The console never imports the service; the service implements :class:`ServiceView`.
 The read side returns plain dicts (JSON-compatible, shapes below) so that the console
 can print them for a fitter and pass them through unchanged in JSON mode; the console
-renders them defensively (missing keys show as "-"). The helpers here
-(:func:`estimates_view`, :func:`alert_view`, :func:`history_row`,
-:func:`resolve_parameter`) build those shapes from the shared records, for the
-service and for :class:`gateway.console.static.StaticView` alike.
+renders them defensively (missing keys show as "-"). The write side returns typed
+frozen results (:class:`AckResult`, :class:`BaselineResult`, :class:`ThresholdResult`),
+each with its JSON form. The helpers here (:func:`estimates_view`, :func:`alert_view`,
+:func:`history_row`, :func:`resolve_parameter`) build the read shapes from the shared
+records, for the service and for the test doubles alike.
 
 Every method is called from the console's port thread: the service must make them
-thread-safe. Write methods are called only after login, with canonical arguments
-(parameter names from :data:`gateway.model.PARAM_NAMES`, a :class:`Severity`), and
-raise :class:`gateway.errors.InputError` ("expected ..., got ...") to refuse.
+thread-safe. Write methods are called only after login and a successful audit of the
+attempt, with canonical arguments (parameter names from :data:`gateway.model.PARAM_NAMES`,
+a :class:`Severity`), and raise :class:`gateway.errors.InputError` ("expected ..., got
+...") to refuse.
 """
 
 from __future__ import annotations
@@ -21,15 +23,60 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from gateway.alerts import Levels
+from gateway.console.session import LockoutState
 from gateway.errors import InputError
 from gateway.model import PARAM_NAMES, THETA_NOMINAL
 from gateway.records import Alert, Estimate, Severity
 
 
+@dataclass(frozen=True)
+class AckResult:
+    """``ack``: the ACKNOWLEDGED event the service emitted."""
+
+    alert: Alert
+
+    def to_json(self) -> dict[str, Any]:
+        return {"alert": alert_view(self.alert)}
+
+
+@dataclass(frozen=True)
+class BaselineResult:
+    """``baseline reset``: the parameter, the data time ``t_s`` (s, NaN before the first
+    estimate), the CLEARED events it caused and what the estimator does now."""
+
+    parameter: str
+    t_s: float
+    cleared: tuple[Alert, ...]
+    estimator: str = "re-learning this parameter from the prior"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"parameter": self.parameter, "t_s": _finite(self.t_s),
+                "events": [alert_view(a) for a in self.cleared], "estimator": self.estimator}
+
+
+@dataclass(frozen=True)
+class ThresholdResult:
+    """``threshold set``: the changed level and the parameter's thresholds afterwards."""
+
+    parameter: str
+    side: str
+    severity: Severity
+    value_rel: float
+    low_rel: Levels
+    high_rel: Levels
+
+    def to_json(self) -> dict[str, Any]:
+        return {"parameter": self.parameter, "side": self.side,
+                "severity": self.severity.name, "value_rel": _finite(self.value_rel),
+                "thresholds": {"low": [_finite(v) for v in self.low_rel],
+                               "high": [_finite(v) for v in self.high_rel]}}
+
+
 class ServiceView(Protocol):
     """What the console asks of the running service.
 
-    Dict shapes (every key optional for the console; units in the names):
+    Dict shapes of the read side (every key optional for the console; units in names):
 
     - ``status()``: ``{"state": "Running", "uptime_s", "version", "data_time_s",
       "worker": {"alive", "restarts", "pid", "rtf"}, "bus": {"state", "open"},
@@ -37,7 +84,7 @@ class ServiceView(Protocol):
     - ``estimates()``: as built by :func:`estimates_view`.
     - ``alerts()``: ``(active, recent)``; recent oldest first.
     - ``history(hours)``: rows as built by :func:`history_row`, oldest first, from the
-      persisted estimate history (including baseline-reset and threshold events).
+      persisted estimate history (including baseline-reset events).
     - ``sensors()``: ``{message: {"rate_hz", "expected_hz", "accepted",
       "rejected": {reason: n}, "lost_frames", "timeouts", "timed_out",
       "last_values": {signal: value}}}`` (see ``gateway.validate.MessageStats``).
@@ -45,11 +92,13 @@ class ServiceView(Protocol):
       "error_frames", "frames_rx", "frames_tx", "reopens", "dropped", "last_error"}``.
     - ``config_text()``: the running configuration as TOML (``gateway.config.as_toml``).
     - ``log_lines(n)``: the last ``n`` log lines, oldest first.
-    - write side: a result dict (shown to the fitter, stored in the audit entry).
     - ``audit(entry)``: persist one audit entry (a JSON-compatible dict: ``time``,
       ``t_unix_s``, ``who``, ``port``, ``session``, ``command``, ``args``, ``result``
-      ("ok", "refused", "rejected", "error" or, for login, "failed"/"locked"),
-      ``detail``).
+      ("attempt", "ok", "refused", "rejected", "error" or, for login,
+      "failed"/"locked"), ``detail``); False when it could not be written (the console
+      then refuses the write command: fail closed).
+    - ``load_lockout()`` / ``save_lockout(state)``: the PIN lockout, kept where a
+      restart does not lose it.
     """
 
     def status(self) -> dict[str, Any]: ...
@@ -68,14 +117,18 @@ class ServiceView(Protocol):
 
     def log_lines(self, n: int) -> list[str]: ...
 
-    def acknowledge(self, alert_key: int | str) -> dict[str, Any]: ...
+    def acknowledge(self, alert_key: int | str) -> AckResult: ...
 
-    def baseline_reset(self, component: str) -> dict[str, Any]: ...
+    def baseline_reset(self, component: str) -> BaselineResult: ...
 
     def set_threshold(self, parameter: str, severity: Severity,
-                      value_rel: float) -> dict[str, Any]: ...
+                      value_rel: float) -> ThresholdResult: ...
 
-    def audit(self, entry: dict[str, Any]) -> None: ...
+    def audit(self, entry: dict[str, Any]) -> bool: ...
+
+    def load_lockout(self) -> LockoutState | None: ...
+
+    def save_lockout(self, state: LockoutState) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -129,19 +182,6 @@ def alert_view(alert: Alert) -> dict[str, Any]:
             "severity": alert.severity.name, "state": alert.state.name,
             "code": alert.code, "value_rel": _finite(alert.value_rel),
             "message": alert.message}
-
-
-def judge(value_rel: float | None, thresholds: Mapping[str, Sequence[float | None]]) -> str:
-    """The severity word a bare value reaches against ``{"low": (A, W, Al), "high": ...}``
-    (no hold times or hysteresis; the service's alert state takes precedence)."""
-    if value_rel is None or not math.isfinite(value_rel):
-        return "UNKNOWN"
-    worst = 0
-    for side, levels in thresholds.items():
-        for k, t in enumerate(levels):
-            if t is not None and (value_rel <= t if side == "low" else value_rel >= t):
-                worst = max(worst, k + 1)
-    return Severity(worst).name if worst else "OK"
 
 
 def estimates_view(est: Estimate | None, *,

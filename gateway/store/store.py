@@ -4,19 +4,21 @@ Files (in ``state_dir``; see ``docs/alerts.md``)::
 
     checkpoint.bin      estimator checkpoint, latest only            atomic replace
     alert_policy.json   alert-policy snapshot                        atomic replace
+    alert_seq.bin       alert seqs reserved so far (two slots)       in-place write + fsync
     alerts.jsonl        alert events, append-only                    fsync per append
     estimates.jsonl     estimate history, one point per 10 s data    fsync per append
-    estimates.1.jsonl   the previous estimate-history segment        (rotated)
     baselines.jsonl     baseline resets                              fsync per append
     audit.jsonl         console write commands                       fsync per append
+    <log>.<N>.jsonl     rotated segments of each log (N grows)       rename; newest K kept
     .lock               flock: one store per directory
-    *.corrupt-N         a file set aside because it could not be read
+    *.corrupt-N         a file set aside because it could not be used (newest 3 kept)
 
-Write methods never raise ``OSError`` (a full disk, a read-only file system): they log,
-count the failure in :attr:`StateStore.failures` and return False, so the service keeps
-running. Readers raise :class:`StateError` for corrupt files (``on_corrupt="raise"``) or
-set them aside and carry on (``"quarantine"``); a corrupt checkpoint is always set aside
-and reported, so the estimator starts fresh.
+Every log is bounded (:data:`DEFAULT_BOUNDS`, :class:`LogBounds`). Write methods never
+raise ``OSError`` (a full disk, a read-only file system): they log, count the failure in
+:attr:`StateStore.failures` and return False, so the service keeps running. Readers raise
+:class:`StateError` for corrupt files (``on_corrupt="raise"``) or set them aside and carry
+on (``"quarantine"``, which also checks every file when the store opens); the files set
+aside are in :attr:`StateStore.quarantined`. A corrupt checkpoint is always set aside.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import fcntl
 import json
 import logging
 import os
+import stat
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -35,26 +38,33 @@ from gateway.errors import StateError
 from gateway.records import Alert, Estimate
 from gateway.store import codec
 from gateway.store.codec import AlertEntry, AuditEntry, BaselineEntry, Checkpoint, EstimateEntry
-from gateway.store.files import (
-    TMP_SUFFIX,
-    JsonlWriter,
-    atomic_write,
-    dumps_line,
-    first_line,
-    fsync_dir,
-    read_jsonl,
-)
+from gateway.store.files import TMP_SUFFIX, atomic_write, first_line, fsync_dir, read_jsonl, \
+    read_regular
+from gateway.store.ledger import SeqLedger, read_ledger
+from gateway.store.segments import LogBounds, SegmentedLog
 
 log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.bin"
 POLICY = "alert_policy.json"
+SEQ_LEDGER = "alert_seq.bin"
 ALERTS = "alerts.jsonl"
 ESTIMATES = "estimates.jsonl"
 ESTIMATES_PREVIOUS = "estimates.1.jsonl"
+"""The first rotated estimate segment (the only one in versions before segment numbers)."""
 BASELINES = "baselines.jsonl"
 AUDIT = "audit.jsonl"
 LOCK = ".lock"
+QUARANTINE_KEEP = 3
+"""Files set aside (``<name>.corrupt-N``) kept per name; older ones are deleted."""
+MiB = 1 << 20
+DEFAULT_BOUNDS: Mapping[str, LogBounds] = {
+    ALERTS: LogBounds(1 * MiB, 8),          # ~4,000 events a segment, ~36,000 kept
+    ESTIMATES: LogBounds(4 * MiB, 7),       # 32 MiB: ~14 days at one point per 10 s
+    BASELINES: LogBounds(256 << 10, 3),
+    AUDIT: LogBounds(1 * MiB, 8),
+}
+"""Rotation bound and retention of each log; disk use <= segment_bytes * (keep + 1)."""
 T = TypeVar("T")
 
 
@@ -313,3 +323,27 @@ class StateStore:
         with self._lock:
             entries = self._read_lines(AUDIT, codec.audit_from_json)
         return entries[-last:] if last else entries
+
+    # -- console PIN lockout (owned by gateway.console; a small separate file) ----------
+    def save_console_lockout(self, state: Mapping[str, Any]) -> bool:
+        """Replace the console's PIN-lockout state (a small JSON object) atomically."""
+        data = json.dumps(dict(state), allow_nan=False).encode()
+        return self._write(CONSOLE_LOCKOUT,
+                           lambda: atomic_write(self.path / CONSOLE_LOCKOUT, data))
+
+    def load_console_lockout(self) -> dict[str, Any] | None:
+        """The console's PIN-lockout state, None if there is none; StateError if unusable
+        (set aside first with ``on_corrupt="quarantine"``): the console then fails closed."""
+        path = self.path / CONSOLE_LOCKOUT
+        with self._lock:
+            try:
+                state = json.loads(path.read_bytes())
+                if not isinstance(state, dict):
+                    raise ValueError(f"a {type(state).__name__}")
+                return state
+            except FileNotFoundError:
+                return None
+            except (OSError, ValueError, RecursionError) as err:
+                if self._on_corrupt == "quarantine":
+                    self._set_aside(CONSOLE_LOCKOUT, str(err))
+                raise StateError(f"{path}: expected a JSON object, got {err}") from err

@@ -163,7 +163,7 @@ class PtyTerminal:
 
 
 @contextmanager
-def console_on_pty(view: ServiceView, directory: str | Path, *, pin_sha256: str = "",
+def console_on_pty(view: ServiceView, directory: str | Path, *, pin_hash: str = "",
                    limits: ConsoleLimits | None = None,
                    clock: Callable[[], float] = time.monotonic,
                    wall: Callable[[], float] = time.time,
@@ -172,7 +172,7 @@ def console_on_pty(view: ServiceView, directory: str | Path, *, pin_sha256: str 
     """A console port thread serving ``view`` on a fresh pty; yields ``(terminal, port)``
     once the banner has arrived, and closes both afterwards."""
     term = PtyTerminal(directory)
-    console = Console(view, pin_sha256=pin_sha256, limits=limits, clock=clock, wall=wall,
+    console = Console(view, pin_hash=pin_hash, limits=limits, clock=clock, wall=wall,
                       port_name=term.path)
     port = ConsolePort(console, term.path, reopen_min_s=reopen_min_s,
                        reopen_max_s=reopen_max_s)

@@ -1,10 +1,14 @@
-"""An in-memory ServiceView built from real records: for tests, demos and the docs transcript.
+"""The example ServiceView: in memory, built from real records and the real alert policy.
 
-:meth:`StaticView.example` is a bogie whose lateral damper has faded to a third of
+:meth:`ExampleView.example` is a bogie whose lateral damper has faded to a third of
 nominal (ALARM) and whose wheelset conicity is high (ADVISORY, acknowledged), with two
-days of hourly history. The write side acts on this state the way the service does
-(acknowledge, baseline reset, threshold change) and keeps every audit entry in
-:attr:`StaticView.audit_log`.
+days of hourly history: the transcript in ``docs/console.md``. Alerts, thresholds and
+every write go through a real :class:`gateway.alerts.AlertPolicy` (restored from the
+example's alert history, exactly as the service restores its own), so the example can
+never judge differently from the product. Every audit entry is kept in
+:attr:`ExampleView.audit_log`; ``audit_ok = False`` makes audit writes fail, and the
+lockout is kept in :attr:`ExampleView.lockout` (a restart is a new view given it).
+A test double: it lives in ``tests/``, never in the wheel.
 """
 
 from __future__ import annotations
@@ -16,43 +20,34 @@ from collections.abc import Sequence
 from typing import Any
 
 from gateway import __version__
+from gateway.alerts import AlertPolicy
 from gateway.config import Config, SerialConfig, as_toml
+from gateway.console.session import LockoutState
 from gateway.console.view import (
     NOMINAL,
-    alert_view,
+    AckResult,
+    BaselineResult,
+    ThresholdResult,
     estimates_view,
     history_row,
-    resolve_parameter,
 )
 from gateway.errors import InputError
+from gateway.model import PARAM_NAMES
 from gateway.records import Alert, AlertState, Estimate, Severity
 
-DEFAULT_THRESHOLDS: dict[str, dict[str, list[float | None]]] = {
-    "csy_ns_per_m": {"low": [0.75, 0.55, 0.35], "high": [None, None, None]},
-    "csay_ns_per_m": {"low": [0.75, 0.55, 0.35], "high": [None, None, None]},
-    "conicity": {"low": [None, None, None], "high": [1.6, 2.0, 2.67]},
-}
-"""The alert policy's defaults (``docs/alerts.md``), relative to nominal."""
 
-
-class StaticView:
+class ExampleView:
     """A :class:`~gateway.console.view.ServiceView` over fixed data; thread-safe."""
 
-    def __init__(self, *, estimate: Estimate | None, active: Sequence[Alert] = (),
-                 recent: Sequence[Alert] = (),
-                 thresholds: dict[str, dict[str, list[float | None]]] | None = None,
+    def __init__(self, *, estimate: Estimate | None, history_alerts: Sequence[Alert] = (),
                  history: Sequence[dict[str, Any]] = (), sensors: dict[str, Any] | None = None,
                  bus: dict[str, Any] | None = None, config_text: str = "",
                  log: Sequence[str] = (), status: dict[str, Any] | None = None,
-                 particles: int = 1000) -> None:
+                 particles: int = 1000, lockout: LockoutState | None = None) -> None:
         self._lock = threading.Lock()
         self._estimate = estimate
-        self._active = {a.parameter: a for a in active}
-        self._raised = {a.parameter: a.seq for a in recent
-                        if a.state == AlertState.RAISED and a.parameter in self._active}
-        self._recent = list(recent)
-        self._thresholds = {k: {s: list(v) for s, v in d.items()}
-                            for k, d in (thresholds or DEFAULT_THRESHOLDS).items()}
+        self.policy = AlertPolicy.restore(None, None, history_alerts)
+        self._recent = list(history_alerts)
         self._history = list(history)
         self._sensors = sensors or {}
         self._bus = bus or {}
@@ -60,25 +55,27 @@ class StaticView:
         self._log = list(log)
         self._status = status or {"state": "Running", "version": __version__}
         self._particles = particles
-        self._next_seq = 1 + max((a.seq for a in [*active, *recent]), default=0)
         self.audit_log: list[dict[str, Any]] = []
+        self.audit_ok = True
+        self.lockout = lockout
 
     # -- read side ---------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         with self._lock:
-            return {**self._status, "active_alerts": len(self._active)}
+            return {**self._status, "active_alerts": len(self.policy.active)}
 
     def estimates(self) -> dict[str, Any]:
         with self._lock:
-            return estimates_view(self._estimate, thresholds=self._thresholds,
-                                  active=list(self._active.values()),
-                                  particles=self._particles,
-                                  max_std_rel={"csy_ns_per_m": 0.05, "csay_ns_per_m": 0.05,
-                                               "conicity": 0.08})
+            params = self.policy.config.params
+            return estimates_view(self._estimate,
+                                  thresholds={n: {"low": pp.low_rel, "high": pp.high_rel}
+                                              for n, pp in params.items()},
+                                  active=self.policy.active, particles=self._particles,
+                                  max_std_rel={n: pp.max_std_rel for n, pp in params.items()})
 
     def alerts(self) -> tuple[list[Alert], list[Alert]]:
         with self._lock:
-            return list(self._active.values()), list(self._recent)
+            return list(self.policy.active), list(self._recent)
 
     def history(self, hours: float) -> list[dict[str, Any]]:
         with self._lock:
@@ -100,81 +97,51 @@ class StaticView:
         with self._lock:
             return self._log[-n:] if n > 0 else []
 
-    # -- write side --------------------------------------------------------------------
+    # -- write side: the real policy, as the service's main loop calls it ----------------
     def _now_s(self) -> float:
-        return self._estimate.t_s if self._estimate is not None else 0.0
+        return self._estimate.t_s if self._estimate is not None else math.nan
 
-    def _event(self, old: Alert, state: AlertState, message: str) -> Alert:
-        alert = dataclasses.replace(old, seq=self._next_seq, t_s=self._now_s(), state=state,
-                                    message=message)
-        self._next_seq += 1
-        self._recent.append(alert)
-        return alert
-
-    def acknowledge(self, alert_key: int | str) -> dict[str, Any]:
+    def acknowledge(self, alert_key: int | str) -> AckResult:
         with self._lock:
-            if isinstance(alert_key, str):
-                param = resolve_parameter(alert_key)
-                found = self._active.get(param)
-                if found is None:
-                    raise InputError(f"expected an active alert for {param}, got none")
-            else:
-                hits = [a for a in self._active.values()
-                        if alert_key in (a.seq, self._raised.get(a.parameter))]
-                if not hits:
-                    seqs = sorted(self._raised.get(p, a.seq) for p, a in self._active.items())
-                    raise InputError(f"expected the seq of an active alert {seqs}, "
-                                     f"got {alert_key}")
-                found = hits[0]
-            if found.state == AlertState.ACKNOWLEDGED:
-                raise InputError(f"expected a RAISED alert, got alert {found.seq} "
-                                 f"({found.parameter}) already ACKNOWLEDGED")
-            ack = self._event(found, AlertState.ACKNOWLEDGED,
-                              f"{found.parameter} {found.severity.name} acknowledged")
-            self._active[found.parameter] = ack
-            return {"alert": alert_view(ack)}
+            alert = self.policy.acknowledge(alert_key, self._now_s())
+            self._recent.append(alert)
+            return AckResult(alert)
 
-    def baseline_reset(self, component: str) -> dict[str, Any]:
+    def baseline_reset(self, component: str) -> BaselineResult:
+        if component not in PARAM_NAMES:
+            raise InputError(f"expected a parameter from {list(PARAM_NAMES)}, got {component!r}")
         with self._lock:
-            param = resolve_parameter(component)
-            events = []
-            old = self._active.pop(param, None)
-            if old is not None:
-                events.append(alert_view(self._event(old, AlertState.CLEARED,
-                                                     f"{param} baseline reset")))
-            self._history.append(history_row(self._now_s(), event=f"baseline reset {param}"))
-            return {"parameter": param, "t_s": self._now_s(), "events": events}
+            t = self._now_s()
+            cleared = self.policy.reset_baseline(component, t)
+            self._recent.extend(cleared)
+            self._history.append(history_row(t, event=f"baseline reset {component}"))
+            return BaselineResult(component, t, tuple(cleared))
 
     def set_threshold(self, parameter: str, severity: Severity,
-                      value_rel: float) -> dict[str, Any]:
+                      value_rel: float) -> ThresholdResult:
         with self._lock:
-            param = resolve_parameter(parameter)
-            if not (math.isfinite(value_rel) and value_rel > 0 and value_rel != 1.0):
-                raise InputError(f"expected a threshold > 0 and != 1 relative to nominal, "
-                                 f"got {value_rel!r}")
-            side = "low" if value_rel < 1 else "high"
-            levels = list(self._thresholds[param][side])
-            levels[int(severity) - 1] = float(value_rel)
-            given = [v for v in levels if v is not None]
-            ordered = all((a > b) if side == "low" else (a < b)
-                          for a, b in zip(given, given[1:], strict=False))
-            if not ordered:
-                way = "decreasing" if side == "low" else "increasing"
-                raise InputError(f"expected {side}-side thresholds strictly {way} with "
-                                 f"severity, got {levels}")
-            self._thresholds[param][side] = levels
-            self._history.append(history_row(
-                self._now_s(), event=f"threshold {param} {side} {severity.name} {value_rel:g}"))
-            return {"parameter": param, "side": side, "severity": severity.name,
-                    "value_rel": value_rel, "thresholds": self._thresholds[param]}
+            self.policy.set_threshold(parameter, severity, value_rel)
+            pp = self.policy.config.params[parameter]
+            return ThresholdResult(parameter, "low" if value_rel < 1 else "high", severity,
+                                   value_rel, pp.low_rel, pp.high_rel)
 
-    def audit(self, entry: dict[str, Any]) -> None:
+    def audit(self, entry: dict[str, Any]) -> bool:
         with self._lock:
+            if not self.audit_ok:
+                return False
             self.audit_log.append(dict(entry))
+            return True
+
+    def load_lockout(self) -> LockoutState | None:
+        return self.lockout
+
+    def save_lockout(self, state: LockoutState) -> bool:
+        self.lockout = state
+        return True
 
     # -- the example -------------------------------------------------------------------
     @classmethod
-    def example(cls, *, pin_sha256: str = "") -> StaticView:
+    def example(cls, *, pin_hash: str = "") -> ExampleView:
         """A weak lateral damper (ALARM) and high conicity (ADVISORY, acknowledged)."""
         t_now = 48 * 3600.0
         est = Estimate(t_s=t_now, mean=(12.9e3, 4.02e6, 0.2475), std=(0.41e3, 0.09e6, 0.011),
@@ -192,7 +159,6 @@ class StaticView:
             Alert(5, 46.5 * 3600.0, "conicity", Severity.ADVISORY, AlertState.ACKNOWLEDGED,
                   0x27, 1.63, "conicity ADVISORY acknowledged"),
         ]
-        active = [recent[2], recent[4]]
         history = []
         for h in range(49):
             frac = h / 48.0
@@ -217,7 +183,7 @@ class StaticView:
                "last_error": "open failed: [Errno 19] No such device"}
         base = Config()  # the example gateway runs 1000 particles, as its ESS line says
         cfg = dataclasses.replace(base, serial=SerialConfig(
-            device="/dev/ttyS1", pin_sha256=pin_sha256 or "0" * 64),
+            device="/dev/ttyS1", pin_hash=pin_hash),
             estimator=dataclasses.replace(base.estimator, particles=1000))
         log = [f"INFO gateway.service: checkpoint {k} written (data time {k * 5.0:.1f} s)"
                for k in range(34_540, 34_560)]
@@ -225,7 +191,7 @@ class StaticView:
                   "data_time_s": t_now, "reason": "BDN_Lat timed out",
                   "worker": {"alive": True, "restarts": 0, "pid": 4242, "rtf": 3.1},
                   "bus": {"state": "ERROR_ACTIVE", "open": True}}
-        return cls(estimate=est, active=active, recent=recent, history=history,
+        return cls(estimate=est, history_alerts=recent, history=history,
                    sensors=sensors, bus=bus, config_text=as_toml(cfg), log=log, status=status,
                    particles=cfg.estimator.particles)
 
