@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,6 +25,8 @@ from gateway.records import Alert, AlertState, Estimate, Severity
 SIDES: tuple[str, str] = ("low", "high")
 CODE_BASE: dict[str, int] = {"low": 0x10, "high": 0x20}
 SNAPSHOT_VERSION = 1
+SEQ_BLOCK = 16
+"""Seqs reserved durably at a time (``reserve``): a restart skips at most this many."""
 Levels = tuple[float | None, float | None, float | None]
 """Thresholds relative to nominal for (ADVISORY, WARNING, ALARM); None = not judged."""
 
@@ -167,11 +169,22 @@ class AlertPolicy:
     One active alert per parameter at its current severity. Events are :class:`Alert`
     records with ``seq`` strictly increasing over the gateway's life (persist the
     snapshot and the history and :meth:`restore` from both).
+
+    ``reserve(upto) -> bool``, if given, is called before a seq at or past the reserved
+    bound is used, to record durably that seqs below ``upto`` (``SEQ_BLOCK`` more) may be
+    used; :meth:`restore` from that bound then never repeats a seq, even if the events
+    themselves were never persisted. A failed reservation does not hold an alert back
+    (it still goes out); it is counted in :attr:`seq_unreserved`.
     """
 
-    def __init__(self, config: PolicyConfig | None = None, *, next_seq: int = 1) -> None:
+    def __init__(self, config: PolicyConfig | None = None, *, next_seq: int = 1,
+                 reserve: Callable[[int], bool] | None = None) -> None:
         self._config = config or PolicyConfig()
         self._next_seq = next_seq
+        self._reserve = reserve
+        self._reserved_upto = next_seq
+        self.seq_unreserved = 0
+        """Events emitted with a seq whose reservation could not be persisted."""
         self._tracks = {name: _Track() for name in self._config.params}
         self._overrides: list[tuple[str, int, str, float | None]] = []
         self.restore_problems: list[str] = []  # persisted overrides that no longer validate
@@ -268,6 +281,12 @@ class AlertPolicy:
 
     def _event(self, name: str, tr: _Track, sev: int, side: str, state: AlertState,
                t_s: float, message: str) -> Alert:
+        if self._reserve is not None and self._next_seq >= self._reserved_upto:
+            upto = self._next_seq + SEQ_BLOCK
+            if self._reserve(upto):
+                self._reserved_upto = upto
+            else:
+                self.seq_unreserved += 1
         alert = Alert(self._next_seq, t_s, name, Severity(sev), state,
                       alert_code(name, Severity(sev), side), tr.value_rel, message)
         self._next_seq += 1
@@ -376,15 +395,23 @@ class AlertPolicy:
 
     @classmethod
     def restore(cls, snapshot: Mapping[str, Any] | None, config: PolicyConfig | None = None,
-                history: Iterable[Alert] = ()) -> AlertPolicy:
+                history: Iterable[Alert] = (), *, reserved_upto: int | None = 0,
+                reserve: Callable[[int], bool] | None = None,
+                strict: bool = True) -> AlertPolicy:
         """A policy from ``snapshot`` (or fresh if None) on top of ``config``, then brought up
         to date with the alert ``history`` events newer than the snapshot (a crash between
-        the history append and the snapshot write loses nothing). StateError if malformed."""
+        the history append and the snapshot write loses nothing). StateError if the
+        snapshot is malformed, or (``strict``) a history event is; with ``strict=False``
+        such an event is skipped and noted in :attr:`restore_problems`.
+
+        ``reserved_upto``: the persisted seq reservation; the next seq is at least that
+        (0: none kept yet; None: it was lost, so one more ``SEQ_BLOCK`` is skipped).
+        ``reserve``: see the class."""
         policy = cls(config)
         if snapshot is not None:
             try:
                 policy._load(snapshot)
-            except (KeyError, TypeError, ValueError, AttributeError) as err:
+            except (KeyError, TypeError, ValueError, AttributeError, RecursionError) as err:
                 raise StateError(f"expected an alert-policy snapshot version "
                                  f"{SNAPSHOT_VERSION}, got a malformed one ({err!r})") from err
         for alert in sorted(history, key=lambda a: a.seq):
@@ -392,7 +419,15 @@ class AlertPolicy:
                 try:
                     policy._apply(alert)
                 except InputError as err:
-                    raise StateError(f"alert history seq {alert.seq}: {err}") from err
+                    if strict:
+                        raise StateError(f"alert history seq {alert.seq}: {err}") from err
+                    policy.restore_problems.append(f"alert history seq {alert.seq} "
+                                                   f"skipped: {err}")
+        floor = policy._next_seq + SEQ_BLOCK if reserved_upto is None else reserved_upto
+        if not (isinstance(floor, int) and floor >= 0):
+            raise StateError(f"expected a seq reservation >= 0, got {reserved_upto!r}")
+        policy._next_seq = policy._reserved_upto = max(policy._next_seq, floor)
+        policy._reserve = reserve
         return policy
 
     def _load(self, snap: Mapping[str, Any]) -> None:
@@ -403,7 +438,10 @@ class AlertPolicy:
                 self.set_threshold(parameter, sev, value, side)
             except InputError as err:
                 self.restore_problems.append(f"threshold override not restored: {err}")
-        self._next_seq = int(snap["next_seq"])
+        next_seq = snap["next_seq"]
+        if isinstance(next_seq, bool) or not (isinstance(next_seq, int) and next_seq >= 1):
+            raise ValueError(f"expected next_seq an integer >= 1, got {next_seq!r}")
+        self._next_seq = next_seq
         for name, d in snap["params"].items():
             if name in self._tracks:
                 last = _alert_from_json(d["last"]) if d["last"] is not None else None

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from types import FrameType
 from typing import Any
 
-from gateway.alerts import AlertPolicy
 from gateway.busload import frame_bits_worst_case
 from gateway.canbus import BusSpec, open_bus
 from gateway.codec import Codec, default_codec
@@ -33,7 +32,7 @@ from gateway.sdnotify import Notifier
 from gateway.service_view import ServiceViewImpl
 from gateway.sinks import CanSink, Health, HealthFlags, LogSink
 from gateway.source import BusSource
-from gateway.state import StateStore
+from gateway.state import StateStore, restore_policy
 
 log = logging.getLogger(__name__)
 
@@ -97,8 +96,7 @@ class Service:
                                 reopen_max_s=cfg.bus.reopen_max_s)
         self.can_sink = CanSink(self.codec, self.source.send, cfg.estimator.particles)
         self.log_sink = LogSink()
-        history = [e.alert for e in self.store.read_alerts()]
-        self.policy = AlertPolicy.restore(self.store.load_policy(), None, history)
+        self.policy, history = restore_policy(self.store)   # never raises for bad state
         self.recent_alerts: collections.deque[Alert] = collections.deque(history[-50:],
                                                                           maxlen=50)
         self.pipeline: Pipeline | None = None

@@ -230,8 +230,12 @@ def test_estimate_history_decimation_rotation_and_retention(tmp_path):
     with StateStore(size_limited, history_interval_s=0.0, history_max_bytes=4000) as st:
         for k in range(200):
             st.record_estimate(est(float(k)))
-        assert (size_limited / ESTIMATES).stat().st_size <= 2000
-        assert (size_limited / ESTIMATES_PREVIOUS).stat().st_size <= 2000
+        paths = st.log_paths(ESTIMATES)                 # 7 rotated segments + current
+        assert len(paths) == 8 and not (size_limited / ESTIMATES_PREVIOUS).exists()
+        assert all(p.stat().st_size <= 500 for p in paths)
+        assert sum(p.stat().st_size for p in paths) <= 4000
+        kept = [e.t_s for e in st.read_estimates()]     # the newest, contiguous
+        assert kept == [float(k) for k in range(200 - len(kept), 200)] and len(kept) >= 8
 
 
 def test_baselines_and_audit(tmp_path):

@@ -1,11 +1,13 @@
 """The service's persisted state: a state directory written atomically and read at start-up.
 
-``StateStore`` is the entry point; ``files`` holds the durable-write primitives and
-``codec`` the record formats. The directory layout is in :mod:`gateway.store.store` and
+``StateStore`` is the entry point; ``files`` holds the durable-write primitives,
+``segments`` the bounded logs, ``ledger`` the alert-seq reservation and ``codec`` the
+record formats. The directory layout is in :mod:`gateway.store.store` and
 ``docs/alerts.md``.
 """
 
 from gateway.store.codec import AlertEntry, AuditEntry, BaselineEntry, Checkpoint, EstimateEntry
+from gateway.store.segments import LogBounds
 from gateway.store.store import (
     ALERTS,
     AUDIT,
@@ -14,10 +16,12 @@ from gateway.store.store import (
     ESTIMATES,
     ESTIMATES_PREVIOUS,
     POLICY,
+    SEQ_LEDGER,
     StateStore,
 )
 
 __all__ = [
     "ALERTS", "AUDIT", "BASELINES", "CHECKPOINT", "ESTIMATES", "ESTIMATES_PREVIOUS", "POLICY",
-    "AlertEntry", "AuditEntry", "BaselineEntry", "Checkpoint", "EstimateEntry", "StateStore",
+    "SEQ_LEDGER", "AlertEntry", "AuditEntry", "BaselineEntry", "Checkpoint", "EstimateEntry",
+    "LogBounds", "StateStore",
 ]

@@ -11,6 +11,8 @@ import contextlib
 import json
 import logging
 import os
+import stat
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -63,21 +65,58 @@ def dumps_line(obj: Any) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode() + b"\n"
 
 
-def _parses(line: bytes) -> bool:
+def loads_object(line: bytes) -> dict[str, Any] | None:
+    """The JSON object on ``line``, or None if it is not one (bad JSON, another type, or
+    nesting deep enough to raise RecursionError)."""
     try:
-        return isinstance(json.loads(line), dict)
-    except ValueError:
-        return False
+        obj = json.loads(line)
+    except (ValueError, RecursionError):
+        return None
+    return obj if isinstance(obj, dict) else None
+
+
+def _parses(line: bytes) -> bool:
+    return loads_object(line) is not None
+
+
+def file_kind(mode: int) -> str:
+    """What a non-regular file is, for messages: "a directory", "a FIFO", ..."""
+    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISLNK, "a symbolic link"), (stat.S_ISSOCK, "a socket"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return kind
+    return f"file type {stat.S_IFMT(mode):#o}"
+
+
+def open_regular(path: Path) -> int:
+    """A read-only descriptor on ``path``; StateError if it is not a regular file (a
+    directory, a FIFO that would block the reader, a device). FileNotFoundError passes."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        kind = file_kind(mode)
+        raise StateError(f"{path}: expected a regular file, got {kind}")
+    return fd
+
+
+def read_regular(path: Path) -> bytes:
+    """The whole content of a regular file (see :func:`open_regular`)."""
+    fd = open_regular(path)
+    with os.fdopen(fd, "rb") as f:
+        return f.read()
 
 
 def repair_tail(path: Path) -> int:
     """Drop a torn last line (no newline, or not a JSON object) so that appends start on a
     clean line; returns the number of bytes dropped (0 if the file is clean or missing)."""
     try:
-        size = path.stat().st_size
+        fd = open_regular(path)
     except FileNotFoundError:
         return 0
-    with open(path, "rb") as f:
+    with os.fdopen(fd, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
         start = max(0, size - TAIL_BYTES)
         f.seek(start)
         tail = f.read()
@@ -102,7 +141,7 @@ def read_jsonl(path: Path) -> list[tuple[int, dict[str, Any]]]:
     """``[(line_number, object), ...]`` of a JSON Lines file ([] if missing). A torn or
     unparsable *last* line is skipped with a warning; any other bad line is a StateError."""
     try:
-        data = path.read_bytes()
+        data = read_regular(path)
     except FileNotFoundError:
         return []
     lines = data.split(b"\n")
@@ -111,11 +150,8 @@ def read_jsonl(path: Path) -> list[tuple[int, dict[str, Any]]]:
     for i, line in enumerate(lines):
         if not line.strip():
             continue
-        try:
-            obj = json.loads(line)
-        except ValueError:
-            obj = None
-        if isinstance(obj, dict):
+        obj = loads_object(line)
+        if obj is not None:
             out.append((i + 1, obj))
         elif i == last:
             log.warning("state: %s:%d: skipped a torn last line", path, i + 1)
@@ -125,15 +161,58 @@ def read_jsonl(path: Path) -> list[tuple[int, dict[str, Any]]]:
     return out
 
 
+def read_jsonl_backwards(path: Path, block_bytes: int = TAIL_BYTES
+                         ) -> Iterator[tuple[int, dict[str, Any]]]:
+    """``(byte_offset, object)`` of a JSON Lines file from the last line to the first,
+    reading ``block_bytes`` at a time from the end (nothing if missing). A torn last line
+    is skipped with a warning; any other bad line is a StateError naming its byte offset."""
+    try:
+        fd = open_regular(path)
+    except FileNotFoundError:
+        return
+    try:
+        end = os.fstat(fd).st_size
+        carry = b""                          # the start of a line cut by a block edge
+        first = True
+        while end > 0 or carry:
+            start = max(0, end - block_bytes)
+            chunk = os.pread(fd, end - start, start) + carry if end > 0 else carry
+            lines = chunk.split(b"\n")
+            carry = lines.pop(0) if start > 0 else b""
+            offset = start + len(carry) + (1 if start > 0 else 0)
+            found = []
+            for line in lines:
+                found.append((offset, line))
+                offset += len(line) + 1
+            for off, line in reversed(found):
+                if not line.strip():
+                    continue
+                obj = loads_object(line)
+                if obj is None:
+                    if not first:
+                        raise StateError(f"{path}: expected a JSON object per line, got "
+                                         f"{line[:60]!r} at byte {off}")
+                    log.warning("state: %s: skipped a torn last line", path)
+                    first = False
+                    continue
+                first = False
+                yield off, obj
+            end = start
+            if start == 0:
+                break
+    finally:
+        os.close(fd)
+
+
 def first_line(path: Path) -> dict[str, Any] | None:
     """The first record of a JSON Lines file, or None if missing, empty or unparsable."""
     try:
-        with open(path, "rb") as f:
+        fd = open_regular(path)
+        with os.fdopen(fd, "rb") as f:
             line = f.readline(TAIL_BYTES)
-        obj = json.loads(line)
-    except (OSError, ValueError):
+    except (OSError, StateError):
         return None
-    return obj if isinstance(obj, dict) else None
+    return loads_object(line)
 
 
 class JsonlWriter:
