@@ -16,23 +16,23 @@ from firmware_sim.playback import playback_frames
 from firmware_sim.scenarios import SCENARIOS, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from gateway.canbus import DEFAULT_DEMO_BUS, open_bus, open_node_bus, parse_bus_spec
-from gateway.cli import dispatch
+from gateway.cli import SEED, OneLineParser, config_value, dispatch, output_path, real, writing
 from gateway.errors import FrameError, InputError
 from gateway.interchange import read_csv
 
 
 def _add_target(p: argparse.ArgumentParser) -> None:
     target = p.add_mutually_exclusive_group(required=True)
-    target.add_argument("--out", metavar="RUN.log",
+    target.add_argument("--out", metavar="RUN.log", type=output_path,
                         help="write a CAN log, format by suffix (.log candump, .asc, .blf)")
     target.add_argument("--bus", metavar="IFACE:CHANNEL",
                         help="send live, e.g. virtual:railgw or socketcan:vcan0")
-    p.add_argument("--speed", type=float, default=1.0,
+    p.add_argument("--speed", type=real(0.01, 1000.0), default=1.0,
                    help="live playback speed, x real time (default 1)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m firmware_sim",
+    parser = OneLineParser(prog="python -m firmware_sim",
                                      description="Simulated bogie/body/wheelset/vehicle nodes.")
     parser.add_argument("-v", "--verbose", action="store_true")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -40,23 +40,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_list)
     p = sub.add_parser("run", help="simulate a scenario to a log or a bus")
     p.add_argument("--scenario", default="nominal", help="scenario name (see 'list')")
-    p.add_argument("--duration", type=float, help="seconds (default: the scenario's)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=real(0.0, 86_400.0, lo_open=True),
+                   help="seconds (default: the scenario's)")
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--nonlinear-dampers", action="store_true",
                    help="saturating damper curves in the truth (paper Figs. 6-7)")
-    p.add_argument("--track-roughness", type=float, default=None,
+    p.add_argument("--track-roughness", type=config_value("estimator", "track_roughness"),
+                   default=None,
                    help="Ar as printed in the paper (default 2 x 0.33e-3)")
     _add_target(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("play-csv", help="turn an interchange CSV into node frames")
     p.add_argument("csv", help="interchange CSV (time_s, bogie_lat_acc_mps2, ...)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the bus latency jitter")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the bus latency jitter")
     _add_target(p)
     p.set_defaults(func=cmd_play_csv)
     p = sub.add_parser("stream", help="simulate on an embedded bus and print decoded values")
     p.add_argument("--scenario", default="nominal")
-    p.add_argument("--duration", type=float, default=10.0, help="seconds (default 10)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=real(0.0, 86_400.0, lo_open=True), default=10.0,
+                   help="seconds (default 10)")
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--bus", default=DEFAULT_DEMO_BUS, help=f"default {DEFAULT_DEMO_BUS}")
     p.set_defaults(func=cmd_stream)
     return parser
@@ -83,7 +86,8 @@ def _simulation(args: argparse.Namespace) -> Simulation:
 
 def _emit(messages: object, args: argparse.Namespace) -> int:
     if args.out:
-        n = write_log(messages, args.out)  # type: ignore[arg-type]
+        with writing(args.out):
+            n = write_log(messages, args.out)  # type: ignore[arg-type]
         print(f"wrote {n} frames to {args.out}")
         return 0
     spec = parse_bus_spec(args.bus)

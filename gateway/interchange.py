@@ -16,7 +16,10 @@ column                        unit      required
 
 Unknown extra columns are ignored. An empty cell or ``nan`` means "no value at this
 time" for that signal (a dropout); ``time_s`` may never be empty. Anything else that
-is not a finite number is an error naming the file, line and column.
+is not a finite number inside the column's physical domain (:data:`LIMITS`: |time| up
+to 1e10 s, e.g. Unix time; |acceleration| up to 1000 m/s^2, 60x the CAN sensors' own
+range; |yaw rate| up to 100 rad/s; speed 0 to 150 m/s) is an error naming the file,
+line and column.
 """
 
 from __future__ import annotations
@@ -42,6 +45,13 @@ SPEED_COLUMN = "speed_mps"
 REQUIRED = (TIME_COLUMN, SENSOR_COLUMNS["acc_b"], SENSOR_COLUMNS["gyro_b"],
             SENSOR_COLUMNS["acc_bd"])
 OPTIONAL = (SENSOR_COLUMNS["acc_w1"], SENSOR_COLUMNS["acc_w2"], SPEED_COLUMN)
+LIMITS: dict[str, tuple[float, float]] = {
+    TIME_COLUMN: (-1e10, 1e10),
+    **{c: (-1000.0, 1000.0) for c in SENSOR_COLUMNS.values()},
+    SENSOR_COLUMNS["gyro_b"]: (-100.0, 100.0),
+    SPEED_COLUMN: (0.0, 150.0),
+}
+"""The physical domain [lo, hi] of each column (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +94,10 @@ def _parse(text: str, path: str, line: int, column: str, allow_empty: bool) -> f
         raise CsvFormatError(path, line, column, f"expected a number, got {s!r}") from None
     if not math.isfinite(value):
         raise CsvFormatError(path, line, column, f"expected a finite number, got {s!r}")
+    lo, hi = LIMITS[column]
+    if not lo <= value <= hi:
+        raise CsvFormatError(path, line, column, f"expected a value in [{lo:g}, {hi:g}], "
+                                                 f"got {s[:40]!r}")
     return value
 
 

@@ -11,6 +11,11 @@ Grid rule (``to_grid``), for uneven CSV times:
 - speed comes from the ``speed_mps`` column when present (interpolated the same way,
   but bridged across gaps since it varies slowly), else from the ``--speed`` value;
 - a grid point with no valid sensor is a predict-only sample (``update=False``).
+
+Bounds, checked before anything is allocated: the grid rate is 1 Hz to 100 kHz, no gap
+between two rows is longer than ``MAX_GAP_S`` (the estimator would predict through it
+point by point), and the grid has at most ``MAX_GRID_POINTS`` points (about 2.8 h at
+1 kHz, ~0.7 GB of grid). A longer recording is split into runs.
 """
 
 from __future__ import annotations
@@ -25,6 +30,9 @@ from gateway.interchange import Recording
 from gateway.records import Estimate, Sample
 
 GAP_PERIODS = 1.5
+MAX_GAP_S = 60.0
+MAX_GRID_POINTS = 10_000_000
+MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 100_000.0
 
 
 @dataclass(frozen=True)
@@ -72,7 +80,20 @@ def to_grid(rec: Recording, sensors: tuple[str, ...], default_speed_mps: float) 
     period = float(np.median(np.diff(t)))
     if not period > 0:
         raise InputError(f"{rec.source}: expected increasing times, got median step {period}")
-    n = int(np.floor((t[-1] - t[0]) / period + 1e-9)) + 1
+    if not MIN_RATE_HZ <= 1.0 / period <= MAX_RATE_HZ:
+        raise InputError(f"{rec.source}: expected a sample rate of {MIN_RATE_HZ:g} to "
+                         f"{MAX_RATE_HZ:g} Hz (median time step), got {1.0 / period:.6g} Hz")
+    gaps = np.diff(t)
+    k = int(np.argmax(gaps))
+    if gaps[k] > MAX_GAP_S:
+        raise InputError(f"{rec.source}: expected no gap longer than {MAX_GAP_S:g} s "
+                         f"(split the recording), got {gaps[k]:.6g} s after t = {t[k]:.6g} s")
+    span = (t[-1] - t[0]) / period
+    if not span < MAX_GRID_POINTS:
+        raise InputError(f"{rec.source}: expected at most {MAX_GRID_POINTS} grid points "
+                         f"(split the recording), got {span:.3g} ({t[-1] - t[0]:.6g} s at "
+                         f"{1.0 / period:.6g} Hz)")
+    n = int(np.floor(span + 1e-9)) + 1
     grid = t[0] + period * np.arange(n)
     missing = [s for s in sensors if s not in rec.signals]
     if missing:

@@ -13,12 +13,14 @@ import logging
 import math
 import struct
 import time
+import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
 import can
+from can.io.blf import BLFParseError
 
 from gateway.alerts import AlertPolicy
 from gateway.codec import default_codec
@@ -57,14 +59,14 @@ def read_log(path: str | Path) -> Iterator[can.Message]:
         raise InputError(f"expected a CAN log file, got {str(p)!r} (not found)")
     try:
         reader = can.LogReader(str(p))
-    except (ValueError, ImportError, OSError, struct.error) as err:
+    except (ValueError, ImportError, OSError, struct.error, BLFParseError, zlib.error) as err:
         raise InputError(f"expected a CAN log python-can can read (.log, .asc, .blf, ...), "
-                         f"got {str(p)!r}: {err}") from err
+                         f"got {str(p)!r}: {err or type(err).__name__}") from err
     try:
         yield from reader
-    except (ValueError, OSError, IndexError, struct.error) as err:
+    except (ValueError, OSError, IndexError, struct.error, BLFParseError, zlib.error) as err:
         raise InputError(f"expected a well-formed CAN log, got an error in {str(p)!r}: "
-                         f"{err}") from err
+                         f"{err or type(err).__name__}") from err
 
 
 @dataclass

@@ -79,7 +79,8 @@ def test_missing_file(tmp_path):
     ("[bus]\nrx_queue_frames = 10000000000\n", 2, "[bus] rx_queue_frames: expected a value in"),
     ("[estimator]\noutput_rate_hz = 10.0\n[output]\nestimate_rate_hz = 20.0\n", 4,
      "[output] estimate_rate_hz: expected at most [estimator] output_rate_hz (10)"),
-    ("[serial]\npin_sha256 = \"1234\"\n", 2, "[serial] pin_sha256: expected '' or 64 hex"),
+    ("[serial]\npin_sha256 = \"1234\"\n", 2, "[serial] pin_sha256: expected pin_hash"),
+    ("[serial]\n\npin_hash = \"1234\"\n", 3, "[serial] pin_hash: expected"),
     ("[bus]\nchannel = \"can0\\u0000\"\n", 2, "[bus] channel: expected printable"),
 ])
 def test_domain_errors_name_file_line_and_key(tmp_path, text, line, words):

@@ -18,6 +18,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from gateway.cli import SEED, config_value, integer, real
+
 FLOP_PER_PARTICLE_STEP = 2 * (16**3 + 136 * 16 + 16**2 + 3 * (16**2 + 2 * 16 + 136 + 16))
 """Multiply-adds x 2 of one exact 16-state predict + 3-sensor update, upper-triangle
 products counted as such (about 17 kflop)."""
@@ -124,14 +126,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--what", choices=sorted(BENCHES), action="append",
                    help="benchmark(s) to run (default: all)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--particles", type=int, default=1000, help="particles (1000)")
-    p.add_argument("--seconds", type=float, default=5.0, help="simulated seconds (5)")
-    p.add_argument("--steady-after-s", type=float, default=2.0,
+    p.add_argument("--particles", type=config_value("estimator", "particles"), default=1000,
+                   help="particles (1000)")
+    p.add_argument("--seconds", type=real(0.0, 3600.0, lo_open=True), default=5.0,
+                   help="simulated seconds (5)")
+    p.add_argument("--steady-after-s", type=real(0.0, 3600.0), default=2.0,
                    help="start of the steady-state window in s (2)")
-    p.add_argument("--naive-steps", type=int, default=20, help="naive baseline steps (20)")
-    p.add_argument("--threads", type=int, default=None, help="numba threads (all cores)")
-    p.add_argument("--seed", type=int, default=0, help="data and filter seed (0)")
-    p.add_argument("--ar-paper", type=float, default=2 * 0.33e-3, help=argparse.SUPPRESS)
+    p.add_argument("--naive-steps", type=integer(1, 100_000), default=20,
+                   help="naive baseline steps (20)")
+    p.add_argument("--threads", type=integer(1, 1024), default=None,
+                   help="numba threads (all cores)")
+    p.add_argument("--seed", type=SEED, default=0, help="data and filter seed (0)")
+    p.add_argument("--ar-paper", type=config_value("estimator", "track_roughness"),
+                   default=2 * 0.33e-3, help=argparse.SUPPRESS)
     p.set_defaults(func=run)
 
 

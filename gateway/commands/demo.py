@@ -18,6 +18,7 @@ from firmware_sim.output import send_live
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from gateway.canbus import open_bus, open_node_bus
+from gateway.cli import SEED, config_value, real
 from gateway.codec import default_codec
 from gateway.config import Config, with_overrides
 from gateway.errors import FrameError, InputError
@@ -31,13 +32,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulator + gateway on an embedded bus (no hardware)")
     p.add_argument("--scenario", default="lateral-failing",
                    help="simulator scenario (default: the lateral damper fails at half-time)")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds of simulation")
-    p.add_argument("--particles", type=int, default=500,
+    p.add_argument("--duration", type=real(0.0, 86_400.0, lo_open=True), default=60.0,
+                   help="seconds of simulation")
+    p.add_argument("--particles", type=config_value("estimator", "particles"), default=500,
                    help="RBPF particles (default 500: real time with margin on 2 cores, "
                         "beside the simulator)")
     p.add_argument("--sensors", type=int, choices=(3, 5), default=3)
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--state-dir", metavar="DIR",
+    p.add_argument("--seed", type=SEED, default=1)
+    p.add_argument("--state-dir", metavar="DIR", type=config_value("state", "directory"),
                    help="keep the gateway's state here (default: a temporary directory)")
     p.set_defaults(func=run)
 

@@ -6,53 +6,39 @@ import argparse
 import logging
 import time
 
+from gateway.cli import SEED, SPEED_MPS, config_value, integer, output_path, real, writing
 from gateway.errors import InputError
 
 log = logging.getLogger(__name__)
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"expected at least 2, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("estimate", help="estimate Csy, Csay, conicity from a recorded CSV")
     p.add_argument("csv", metavar="FILE.csv", help="interchange-format recording")
-    p.add_argument("--report", required=True, metavar="OUT.json", help="JSON report path")
-    p.add_argument("--particles", type=_positive_int, default=1000, help="particles (1000)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    p.add_argument("--report", required=True, type=output_path, metavar="OUT.json",
+                   help="JSON report path")
+    p.add_argument("--particles", type=config_value("estimator", "particles"), default=1000,
+                   help="particles (1000)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed (0)")
     p.add_argument("--sensors", type=int, choices=(3, 5), default=3,
                    help="3 (bogie + body) or 5 (also wheelsets)")
-    p.add_argument("--track-roughness", type=_positive_float, default=None, metavar="AR",
+    p.add_argument("--track-roughness", type=config_value("estimator", "track_roughness"),
+                   default=None, metavar="AR",
                    help="track roughness Ar as printed in the paper (default 2 x 0.33e-3)")
     p.add_argument("--estimate-ar", action="store_true",
                    help="estimate Ar jointly as a 4th parameter")
-    p.add_argument("--drift", type=float, default=0.0, metavar="REL",
+    p.add_argument("--drift", type=config_value("estimator", "drift_per_sqrt_s"), default=0.0,
+                   metavar="REL",
                    help="random-walk drift of the parameters, relative per sqrt(s) (0: the "
                         "paper's static parameters; the service uses 0.01)")
-    p.add_argument("--speed", type=_positive_float, default=42.5,
+    p.add_argument("--speed", type=SPEED_MPS, default=42.5,
                    help="speed in m/s when the CSV has no speed_mps column (42.5)")
-    p.add_argument("--history-every-s", type=_positive_float, default=0.01,
+    p.add_argument("--history-every-s", type=real(0.0, 3600.0, lo_open=True), default=0.01,
                    help="history interval in s (0.01)")
-    p.add_argument("--threads", type=_positive_int, default=None,
+    p.add_argument("--threads", type=integer(1, 1024), default=None,
                    help="numba threads (default: all available cores)")
-    p.add_argument("--plot", metavar="OUT.png", help="draw Fig. 2-style panels")
+    p.add_argument("--plot", type=output_path, metavar="OUT.png",
+                   help="draw Fig. 2-style panels")
     p.set_defaults(func=run)
 
 
@@ -99,9 +85,12 @@ def run(args: argparse.Namespace) -> int:
                    "resamples": filt.n_resamples, "detections": filt.n_detections,
                    "reseeds": filt.n_reseeds, "wall_s": wall_s,
                    "real_time_factor": duration_s / wall_s if wall_s > 0 else None}
-    report.write_json(args.report, report.build(estimates[-1], history, settings, diagnostics))
+    with writing(args.report):
+        report.write_json(args.report, report.build(estimates[-1], history, settings,
+                                                    diagnostics))
     if args.plot:
-        report.plot(args.plot, history, cfg.names)
+        with writing(args.plot):
+            report.plot(args.plot, history, cfg.names)
     final = estimates[-1]
     for name, m, s in zip(final.names, final.mean, final.std, strict=True):
         print(f"{name:>14}: {m:.6g} +- {s:.3g}")

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from gateway.cli import SEED, SPEED_MPS, config_value, integer, output_dir, real, writing
 from gateway.config import load_config
 from gateway.errors import InputError
 from gateway.identify.data import load_dataset
@@ -43,6 +45,10 @@ def _range(text: str) -> tuple[float, float]:
         a, b = (float(v) for v in text.split(":"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected START:STOP, got {text!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b) and abs(a) <= 1e9 and abs(b) <= 1e9
+            and a < b):
+        raise argparse.ArgumentTypeError(f"expected finite START < STOP within +-1e9, "
+                                         f"got {text!r}")
     return a, b
 
 
@@ -56,52 +62,58 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "[gating] settings read a CAN log (default: built-in)")
     p.add_argument("--track", help="track CSV (position_m, lateral_alignment_m); "
                    "without it the prediction-error (maximum likelihood) path is used")
-    p.add_argument("--out", default="identify-report", help="output directory")
-    p.add_argument("--speed-mps", type=float, help="speed if the data has no speed_mps column")
+    p.add_argument("--out", type=output_dir, default="identify-report",
+                   help="output directory")
+    p.add_argument("--speed-mps", type=SPEED_MPS,
+                   help="speed if the data has no speed_mps column")
     p.add_argument("--sensors", help="comma-separated sensors (default: all in the file)")
     p.add_argument("--section", type=_range, action="append", default=[],
                    metavar="T0:T1", help="learn section in seconds (repeatable)")
     p.add_argument("--section-m", type=_range, action="append", default=[],
                    metavar="X0:X1", help="learn section as track positions in m (repeatable)")
-    p.add_argument("--track-offset-m", type=float, default=0.0,
+    p.add_argument("--track-offset-m", type=real(-1e7, 1e7), default=0.0,
                    help="track position of the leading wheelset at the first sample [m]")
-    p.add_argument("--free-offset-m", type=float, metavar="HALF_WIDTH",
+    p.add_argument("--free-offset-m", type=real(0.0, 1e5, lo_open=True), metavar="HALF_WIDTH",
                    help="identify the track offset too, within --track-offset-m +- HALF_WIDTH "
                    "[m], instead of synchronising by cross-correlation")
     p.add_argument("--params", help="parameters to identify, e.g. Kx,f11,lambda "
                    "(default: Morris top-k on the track path; Csy,Csay,lambda otherwise)")
-    p.add_argument("--top-k", type=int, default=5, help="parameters Morris selects")
-    p.add_argument("--tolerance", type=float, help="relative half-width of the box "
+    p.add_argument("--top-k", type=integer(1, len(ALL_NAMES)), default=5,
+                   help="parameters Morris selects")
+    p.add_argument("--tolerance", type=real(0.0, 0.95, lo_open=True),
+                   help="relative half-width of the box "
                    "(default 0.3 with a track, 0.75 without)")
     p.add_argument("--methods", default="de,da,nm,ps",
                    help=f"optimisers, from {','.join(METHODS)}")
-    p.add_argument("--morris-trajectories", type=int, default=8)
-    p.add_argument("--max-lag-s", type=float, default=1.0,
+    p.add_argument("--morris-trajectories", type=integer(2, 1000), default=8)
+    p.add_argument("--max-lag-s", type=real(0.0, 60.0), default=1.0,
                    help="synchronisation search range; 0 disables it")
-    p.add_argument("--sim-rate-hz", type=float, default=200.0)
+    p.add_argument("--sim-rate-hz", type=real(10.0, 10_000.0), default=200.0)
     p.add_argument("--band-hz", type=_range, default=(0.4, 20.0), metavar="LO:HI")
-    p.add_argument("--ar-paper", type=float, default=AR_PAPER_DEFAULT,
+    p.add_argument("--ar-paper", type=config_value("estimator", "track_roughness"),
+                   default=AR_PAPER_DEFAULT,
                    help="track roughness Ar, paper units (prediction-error path)")
-    p.add_argument("--de-maxiter", type=int, default=Budget.de_maxiter)
-    p.add_argument("--da-maxfun", type=int, default=Budget.da_maxfun)
-    p.add_argument("--local-maxfev", type=int, default=Budget.local_maxfev)
-    p.add_argument("--workers", type=int, help="processes (default: all available cores)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--de-maxiter", type=integer(1, 100_000), default=Budget.de_maxiter)
+    p.add_argument("--da-maxfun", type=integer(1, 10_000_000), default=Budget.da_maxfun)
+    p.add_argument("--local-maxfev", type=integer(1, 10_000_000), default=Budget.local_maxfev)
+    p.add_argument("--workers", type=integer(1, 256),
+                   help="processes (default: all available cores)")
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--truth", help="truth JSON from 'identify synth', to report errors")
     p.set_defaults(func=run_identify)
     s = isub.add_parser("synth", help="write a synthetic run: track.csv, data.csv, truth.json")
-    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--out", type=output_dir, required=True, help="output directory")
     s.add_argument("--perturb", default="", help="e.g. Kx=+25,f11=-25 (percent)")
-    s.add_argument("--duration-s", type=float, default=40.0)
-    s.add_argument("--fs-hz", type=float, default=200.0)
-    s.add_argument("--speed-mps", type=float, default=42.5)
+    s.add_argument("--duration-s", type=real(0.0, 3600.0, lo_open=True), default=40.0)
+    s.add_argument("--fs-hz", type=real(10.0, 10_000.0), default=200.0)
+    s.add_argument("--speed-mps", type=SPEED_MPS, default=42.5)
     s.add_argument("--track-kind", choices=(*TRACK_KINDS, "sines"), default="random",
                    help="random (IRIS band), jointed (25 m rails, cusp at each joint) or sines")
-    s.add_argument("--track-rms-m", type=float, default=3e-3,
+    s.add_argument("--track-rms-m", type=real(0.0, 0.1, lo_open=True), default=3e-3,
                    help="random: RMS; jointed: joint cusp (random part a third of it) [m]")
-    s.add_argument("--offset-m", type=float, default=500.0)
-    s.add_argument("--shift-samples", type=int, default=0)
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--offset-m", type=real(0.0, 1e6), default=500.0)
+    s.add_argument("--shift-samples", type=integer(-100_000, 100_000), default=0)
+    s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=run_synth)
 
 
@@ -110,15 +122,19 @@ def _perturbation(text: str) -> dict[str, float]:
     for item in filter(None, (t.strip() for t in text.split(","))):
         name, _, pct = item.partition("=")
         try:
-            out[resolve_names([name.strip()])[0]] = 1.0 + float(pct) / 100.0
+            value = float(pct)
+            out[resolve_names([name.strip()])[0]] = 1.0 + value / 100.0
         except ValueError:
             raise InputError(f"expected NAME=PERCENT in --perturb, got {item!r}") from None
+        if not -90.0 <= value <= 900.0:
+            raise InputError(f"expected a PERCENT in [-90, 900] in --perturb, got {item!r}")
     return out
 
 
 def run_synth(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    with writing(out):
+        out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(args.seed)
     length = args.offset_m + args.speed_mps * (args.duration_s + 5) + 100
     if args.track_kind in TRACK_KINDS:
@@ -132,12 +148,13 @@ def run_synth(args: argparse.Namespace) -> int:
                          speed_mps=args.speed_mps, offset_m=args.offset_m,
                          shift_samples=args.shift_samples)
     ds = record(truth, track, spec, rng)
-    write_track_csv(out / "track.csv", track)
     signals = {s: ds.measured[:, i] for i, s in enumerate(ds.sensors)}
     signals["speed"] = ds.speed_mps
-    write_csv(out / "data.csv", ds.t_s, signals)
-    (out / "truth.json").write_text(json.dumps({**truth.as_dict(),
-                                                TRUTH_OFFSET_KEY: args.offset_m}, indent=2) + "\n")
+    with writing(out):
+        write_track_csv(out / "track.csv", track)
+        write_csv(out / "data.csv", ds.t_s, signals)
+        (out / "truth.json").write_text(json.dumps(
+            {**truth.as_dict(), TRUTH_OFFSET_KEY: args.offset_m}, indent=2) + "\n")
     print(f"wrote {out / 'track.csv'}, {out / 'data.csv'}, {out / 'truth.json'} "
           f"(track offset {args.offset_m:g} m)")
     return 0
@@ -176,9 +193,10 @@ def run_identify(args: argparse.Namespace) -> int:
         ident = PredictionErrorIdentifier(sections or None, params or PARAM_NAMES,
                                           args.tolerance or 0.75, args.ar_paper)
         ml = ident.fit(ds)
-        out.mkdir(parents=True, exist_ok=True)
         doc = prediction_error_report(ml, truth)
-        write_json(out / "report.json", doc)
+        with writing(out):
+            out.mkdir(parents=True, exist_ok=True)
+            write_json(out / "report.json", doc)
         for n, v in doc["estimates"].items():
             print(f"{n:>16} {v['value']:14.6g} +- {v['std']:.3g}")
         print(f"wrote {out / 'report.json'}")
@@ -201,7 +219,8 @@ def run_identify(args: argparse.Namespace) -> int:
                       local_maxfev=args.local_maxfev, seed=args.seed),
         max_lag_s=args.max_lag_s, workers=args.workers, free_offset_m=args.free_offset_m)
     res = TrackIdentifier(track, sections, config).fit(ds)
-    files = write_track_report(res, out, truth, truth_offset_m)
+    with writing(out):
+        files = write_track_report(res, out, truth, truth_offset_m)
     print(f"identified {', '.join(res.space.names)}; nominal J {res.j_nominal:.4g}")
     if res.space.offset is not None:
         print(f"track offset {res.offset_m():.3f} m (given {res.space.offset.base_m:g} "

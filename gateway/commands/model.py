@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from gateway.cli import SPEED_MPS, real
 from gateway.model import THETA_NOMINAL, Theta, VehicleParams, modes, stability, system_matrix
 
 
@@ -12,12 +13,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("model", help="inspect the vehicle model")
     msub = parser.add_subparsers(dest="model_command", metavar="WHAT", required=True)
     p = msub.add_parser("modes", help="modal frequencies and damping ratios (paper Table 1)")
-    p.add_argument("--speed", type=float, default=42.5, help="vehicle speed in m/s")
-    p.add_argument("--csy", type=float, default=THETA_NOMINAL.csy_ns_per_m,
+    # domains: speed 0.1-150 m/s; dampers up to ~250x nominal (Csy 40 kNs/m, Csay
+    # 4.1 MNs/m); conicity up to 1 (0.05-0.6 on real wheel profiles)
+    p.add_argument("--speed", type=SPEED_MPS, default=42.5, help="vehicle speed in m/s")
+    p.add_argument("--csy", type=real(0.0, 1e7, lo_open=True),
+                   default=THETA_NOMINAL.csy_ns_per_m,
                    help="lateral damping Csy in N s/m (default: Appendix nominal)")
-    p.add_argument("--csay", type=float, default=THETA_NOMINAL.csay_ns_per_m,
+    p.add_argument("--csay", type=real(0.0, 1e9, lo_open=True),
+                   default=THETA_NOMINAL.csay_ns_per_m,
                    help="anti-yaw damping Csay in N s/m (default: Appendix nominal)")
-    p.add_argument("--conicity", type=float, default=THETA_NOMINAL.conicity,
+    p.add_argument("--conicity", type=real(0.0, 1.0, lo_open=True),
+                   default=THETA_NOMINAL.conicity,
                    help="equivalent conicity (default 0.15)")
     p.add_argument("--json", action="store_true", help="print a JSON list")
     p.set_defaults(func=run_modes)

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from gateway.cli import output_path, real, writing
 from gateway.commands.run import add_overrides, config_from_args
 from gateway.errors import InputError
 from gateway.replay import alert_json, replay
@@ -15,14 +16,16 @@ from gateway.replay import alert_json, replay
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="run the pipeline over a CAN log (.log, .asc, .blf)")
     p.add_argument("log", help="CAN log recorded from the vehicle bus or the simulator")
-    p.add_argument("--report", required=True, metavar="OUT.json", help="report JSON")
-    p.add_argument("--jsonl", metavar="OUT.jsonl",
+    p.add_argument("--report", required=True, type=output_path, metavar="OUT.json",
+                   help="report JSON")
+    p.add_argument("--jsonl", type=output_path, metavar="OUT.jsonl",
                    help="estimates and alerts as JSON Lines (default: next to the report)")
-    p.add_argument("--plot", metavar="OUT.png", help="Fig. 2-style plot of the estimates")
-    p.add_argument("--speed", type=float, default=0.0,
+    p.add_argument("--plot", type=output_path, metavar="OUT.png",
+                   help="Fig. 2-style plot of the estimates")
+    p.add_argument("--speed", type=real(0.0, 1000.0), default=0.0,
                    help="pace at N x real time (default 0: as fast as possible)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_overrides(p)
+    add_overrides(p, live=False)
     p.set_defaults(func=run)
 
 
@@ -43,7 +46,11 @@ def run(args: argparse.Namespace) -> int:
         bars[0].set_postfix_str(f"data {t_s:.1f} s", refresh=False)
         bars[0].refresh()
 
-    with open(jsonl_path, "w", encoding="utf-8") as jsonl:
+    if jsonl_path.is_dir():
+        raise InputError(f"{jsonl_path}: expected a writable file, got a directory")
+    with writing(jsonl_path):
+        jsonl = open(jsonl_path, "w", encoding="utf-8")  # noqa: SIM115 - closed below
+    with jsonl:
         result = replay(args.log, cfg, speed=args.speed, jsonl=jsonl, progress=progress)
     for bar in bars:
         bar.close()
@@ -63,9 +70,11 @@ def run(args: argparse.Namespace) -> int:
                    "grid_points": result.grid_points}
     doc = report.build(result.estimates[-1], history, settings, diagnostics)
     doc["alerts"] = [alert_json(a) for a in result.alerts]
-    report.write_json(report_path, doc)
+    with writing(report_path):
+        report.write_json(report_path, doc)
     if args.plot:
-        report.plot(args.plot, history, result.estimates[-1].names)
+        with writing(args.plot):
+            report.plot(args.plot, history, result.estimates[-1].names)
     print(f"replayed {result.frames} frames ({result.grid_points} grid points): "
           f"{len(result.estimates)} estimates, {len(result.alerts)} alert events -> {report_path}, "
           f"{jsonl_path}")
