@@ -21,8 +21,18 @@ and jittered upwards (queueing, arbitration). The model is therefore fitted to t
 
 ``t(k)`` is then the true sample time plus the minimum latency ``L_min``: a constant
 shift, the same for nodes on the same bus, which the grid does not care about.
-A frame far from the model (``|t_rx - t(k)| > resync_s``) is an outlier and dropped;
-``resync_after`` outliers in a row mean the node restarted, and the model restarts.
+A frame far from the model (``|t_rx - t(k)| > resync_s``) is an *outlier*: its receive
+time is not believed, and it joins the node's current *outlier run*. A run is
+*consistent* while its residuals ``u = t_rx - t(k)`` stay within ``run_spread_s`` of
+each other (a clock step or a node restart: every frame off by the same amount); an
+outlier that does not fit starts a new run. An inlier closes the run: it was a
+timestamp glitch, and the caller may still place its frames by sample index. A run
+whose sample indices span ``resync_hold_s`` of the node's own time (and holds at least
+``resync_after`` frames) is *ripe*: :func:`observe` returns :data:`Observation.STEP`,
+and the caller decides whether the receive clock stepped (re-base every node) or this
+node restarted (:func:`restart`). Nothing is decided on fewer frames than that, so a
+burst of glitched timestamps never moves the model, and a real step or restart is
+followed within ``resync_hold_s`` of data.
 Pure functions over a plain, picklable :class:`ClockState`; no I/O, no clock reads.
 """
 
@@ -47,14 +57,25 @@ class ClockParams:
     segment_samples: int = 32
     window_segments: int = 32
     resync_s: float = 0.1
+    """Residual beyond which a receive time is not believed, s."""
     resync_after: int = 3
+    """Fewest frames in a ripe outlier run."""
+    resync_hold_s: float = 0.03
+    """Span of sample indices (node time) a consistent outlier run needs to be ripe, s."""
+    run_spread_s: float = 0.02
+    """Largest spread of residuals within one consistent outlier run, s."""
 
     def __post_init__(self) -> None:
         if self.segment_samples < 2 or self.window_segments < 2 or self.resync_after < 1:
             raise ConfigError(f"expected segment_samples >= 2, window_segments >= 2 and "
                               f"resync_after >= 1, got {self}")
-        if not self.resync_s > 0:
+        if not (math.isfinite(self.resync_s) and self.resync_s > 0):
             raise ConfigError(f"expected resync_s > 0 s, got {self.resync_s}")
+        if not (math.isfinite(self.resync_hold_s) and self.resync_hold_s > 0):
+            raise ConfigError(f"expected resync_hold_s > 0 s, got {self.resync_hold_s}")
+        if not (math.isfinite(self.run_spread_s) and 0 < self.run_spread_s < self.resync_s):
+            raise ConfigError(f"expected 0 < run_spread_s < resync_s, got "
+                              f"{self.run_spread_s} s")
 
 
 @dataclass
@@ -76,6 +97,15 @@ class ClockState:
     env_k: list[int] = field(default_factory=list)
     env_t_s: list[float] = field(default_factory=list)
     outliers_in_row: int = 0
+    """Frames in the current outlier run (0: no run open)."""
+    run_k0: int = 0
+    """Unwrapped index of the run's first frame."""
+    run_k_lo: int = 0
+    run_k_hi: int = 0
+    run_u_min_s: float = math.inf
+    run_u_max_s: float = -math.inf
+    run_t0_s: float = 0.0
+    """Receive time of the run's first frame, s."""
 
     def time_s(self, k: int) -> float:
         """Sample time of unwrapped index ``k`` on the receive clock, s."""
@@ -98,9 +128,12 @@ class Observation(enum.IntEnum):
 
     OK = 0
     OUTLIER = 1
-    """Too far from the model: drop the frame."""
-    RESYNC = 2
-    """The model restarted at this frame (node reset): drop the node's buffered data."""
+    """Too far from the model: the frame joined the current outlier run."""
+    NEW_RUN = 2
+    """Too far from the model and inconsistent with the open run: the old run is over
+    (not ripe) and this frame starts a new one."""
+    STEP = 3
+    """The frame joined the run and made it ripe: re-base or :func:`restart`."""
 
 
 def unwrap(clock: ClockState, raw_idx: int, t_rx_s: float) -> int:
@@ -120,7 +153,20 @@ def restart(clock: ClockState, k: int, t_rx_s: float) -> None:
     clock.seg_count, clock.seg_best_u_s = 0, math.inf
     clock.env_k.clear()
     clock.env_t_s.clear()
+    close_run(clock)
+
+
+def close_run(clock: ClockState) -> None:
+    """Forget the outlier run (it was a glitch, or the caller has dealt with it)."""
     clock.outliers_in_row = 0
+    clock.run_u_min_s, clock.run_u_max_s = math.inf, -math.inf
+
+
+def shift(clock: ClockState, dt_s: float) -> None:
+    """Move the model and its envelope by ``dt_s`` on the receive clock (a re-base)."""
+    clock.offset_s += dt_s
+    clock.seg_best_t_s += dt_s
+    clock.env_t_s[:] = [t + dt_s for t in clock.env_t_s]
 
 
 def observe(clock: ClockState, k: int, t_rx_s: float, params: ClockParams) -> Observation:
@@ -130,11 +176,25 @@ def observe(clock: ClockState, k: int, t_rx_s: float, params: ClockParams) -> Ob
         return Observation.OK
     u = t_rx_s - (clock.offset_s + (k - clock.k_ref) * clock.period_s)
     if u > params.resync_s or u < -params.resync_s:
+        fresh = clock.outliers_in_row == 0 or (
+            max(u, clock.run_u_max_s) - min(u, clock.run_u_min_s) > params.run_spread_s)
+        if fresh:
+            result = Observation.OUTLIER if clock.outliers_in_row == 0 else Observation.NEW_RUN
+            clock.outliers_in_row = 0
+            clock.run_k0 = clock.run_k_lo = clock.run_k_hi = k
+            clock.run_u_min_s = clock.run_u_max_s = u
+            clock.run_t0_s = t_rx_s
+        else:
+            result = Observation.OUTLIER
+            clock.run_u_min_s, clock.run_u_max_s = min(u, clock.run_u_min_s), max(
+                u, clock.run_u_max_s)
+            clock.run_k_lo, clock.run_k_hi = min(k, clock.run_k_lo), max(k, clock.run_k_hi)
         clock.outliers_in_row += 1
-        if clock.outliers_in_row >= params.resync_after:
-            restart(clock, k, t_rx_s)
-            return Observation.RESYNC
-        return Observation.OUTLIER
+        if (clock.outliers_in_row >= params.resync_after and
+                (clock.run_k_hi - clock.run_k_lo) * clock.period_nominal_s
+                >= params.resync_hold_s):
+            return Observation.STEP
+        return result
     clock.outliers_in_row = 0
     if k > clock.k_max:
         clock.k_max = k

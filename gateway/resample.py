@@ -13,9 +13,24 @@
   node has all its samples up to the one after the point, or when the receive time
   (the newest frame's timestamp or ``pop_ready(now_s)``) passes the point by
   ``deadline_s``; then the late node's entries are MISSING. A frame of a sample the
-  grid has already passed is counted in ``late_frames`` and dropped. Finality is
-  decided inside :meth:`Resampler.push`, so the output depends only on the frames and
-  the ``now_s`` values, not on how they are batched.
+  grid has already passed is dropped and counted by reason (:data:`LATE_REASONS`);
+  every grid point with a MISSING entry is counted per message by reason
+  (:data:`GAP_REASONS`). Finality is decided inside :meth:`Resampler.push`, so the
+  output depends only on the frames and the ``now_s`` values, not on how they are
+  batched.
+- **Bad receive times.** Only frames the clock model believes (inliers) move the
+  receive time forward. Outliers are held in their node's *outlier run*
+  (:mod:`gateway.clocksync`). A run that ends before it is ripe was a timestamp glitch:
+  its frames are placed by their sample index (``retimed_frames``). A ripe run is a
+  receive-clock step when every started lateral node sees the same step and the
+  stepping node's index is continuous: the resampler re-bases its time
+  (``rx_offset_s``, ``clock_steps``) and replays the held frames, so a step in either
+  direction loses no sample. Otherwise the node restarted: its model restarts at the
+  run's first frame (``resyncs``) and the held frames are replayed. Either is decided
+  within ``resync_hold_s`` of the node's samples; while a run is open (and younger than
+  :data:`RUN_BLOCK_HOLDS` holds), ``pop_ready`` does not advance the grid.
+- **Excluded messages** (:meth:`Resampler.set_excluded`, e.g. two senders on one id)
+  are not waited for; their entries are MISSING with reason ``excluded``.
 - **Filtering.** Per-sensor Butterworth low-pass (:mod:`gateway.lowpass`, ``None`` = off)
   and a hard low-pass of the yaw rate for curve gating, on the grid, restarted after
   every gap.
@@ -34,7 +49,15 @@ from typing import cast
 
 import numpy as np
 
-from gateway.clocksync import ClockParams, ClockState, Observation, observe, unwrap
+from gateway.clocksync import (
+    SAMPLE_INDEX_MODULUS,
+    ClockParams,
+    ClockState,
+    Observation,
+    close_run,
+    observe,
+    unwrap,
+)
 from gateway.codec import SENSOR_SIGNALS, DecodedFrame, default_codec
 from gateway.errors import ConfigError, InputError, StateError
 from gateway.lowpass import Lowpass, LowpassState, design_lowpass, lowpass_step
@@ -49,7 +72,21 @@ PAPER_LOWPASS_HZ: dict[str, float | None] = {
 NO_LOWPASS_HZ: dict[str, float | None] = dict.fromkeys(SENSORS_5)
 """No anti-alias filtering on any sensor."""
 COUNTERS = ("grid_points", "late_frames", "duplicate_frames", "reordered_frames",
-            "outlier_frames", "resyncs", "ignored_frames", "speed_missing")
+            "outlier_frames", "resyncs", "ignored_frames", "speed_missing", "clock_steps",
+            "retimed_frames")
+LATE_REASONS: tuple[str, ...] = ("deadline", "not_waited", "clock")
+"""Why a frame came after the grid had passed its sample: ``deadline`` its own latency
+exceeded ``deadline_s``; ``not_waited`` a message the grid does not wait for (not in
+``required_messages``) was slower than the others; ``clock`` the clock model placed it
+behind the grid (after a node restart or a model correction)."""
+GAP_REASONS: tuple[str, ...] = ("lost", "late", "outlier", "not_seen", "excluded")
+"""Why a grid point has a message's entries MISSING: ``lost`` no frame of the sample
+arrived (bus loss, rejected by validation, node silent); ``late`` it arrived after the
+grid passed; ``outlier`` its receive time was not believed and its index did not fit;
+``not_seen`` the node has not sent yet; ``excluded`` the message is excluded."""
+RUN_BLOCK_HOLDS = 4.0
+"""An open outlier run younger than this many ``resync_hold_s`` stops ``pop_ready``."""
+_LATE_TAG, _OUTLIER_TAG = 1, 2
 _GYRO = SENSORS_5.index("gyro_b")
 _EMPTY = -(1 << 62)
 """Ring slot marker: no sample index is ever this."""
@@ -107,6 +144,14 @@ class NodeState:
     watermark: int = -1
     """Every sample up to this index is present or no longer waited for."""
     seen: bool = False
+    drop_k: list[int] = field(default_factory=list)
+    """Per ring slot: index of the last sample dropped there (late or outlier)."""
+    drop_tag: list[int] = field(default_factory=list)
+    run: list[tuple[int, DecodedFrame, bool, int]] = field(default_factory=list)
+    """The open outlier run's frames: (arrival number, frame, suspect, unwrapped k)."""
+    excluded: bool = False
+    k_stored: int = _EMPTY
+    """Highest sample index stored in the ring."""
 
 
 @dataclass
@@ -123,6 +168,12 @@ class ResamplerState:
     """Grid points with a MISSING entry, per sensor in SENSORS_5 order."""
     not_available: list[int]
     now_s: float = -math.inf
+    rx_offset_s: float = 0.0
+    """Added to every receive time: the sum of the receive-clock steps re-based, s."""
+    arrivals: int = 0
+    late: dict[str, int] = field(default_factory=lambda: dict.fromkeys(LATE_REASONS, 0))
+    gaps: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Per lateral message: grid points with its entries MISSING, by reason."""
     next_j: int | None = None
     """Index of the next grid point (t = j / fs_hz); None until the first lateral frame."""
     pending: list[GridSample] = field(default_factory=list)
@@ -145,6 +196,18 @@ class ResamplerStats:
     resyncs: int
     ignored_frames: int
     drift_ppm: dict[str, float]
+    late: dict[str, int]
+    """Late frames by reason (:data:`LATE_REASONS`); sums to ``late_frames``."""
+    gaps: dict[str, dict[str, int]]
+    """Per lateral message, grid points with its entries MISSING by reason
+    (:data:`GAP_REASONS`)."""
+    clock_steps: int
+    """Receive-clock steps re-based."""
+    rx_offset_s: float
+    """The receive-time correction now in force, s."""
+    retimed_frames: int
+    """Frames with a disbelieved receive time placed by their sample index."""
+    excluded: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -173,6 +236,15 @@ def _streams(config: ResamplerConfig) -> dict[str, _Stream]:
     return out
 
 
+def _run_step(clock: ClockState) -> tuple[float, int]:
+    """The receive-clock step an outlier run shows if the node's index ran on without a
+    break, s, and that index jump (16-bit wrap undone; small for a clock step)."""
+    jump = (clock.run_k0 - clock.k_max + SAMPLE_INDEX_MODULUS // 2) % SAMPLE_INDEX_MODULUS \
+        - SAMPLE_INDEX_MODULUS // 2
+    k_cont = clock.k_max + jump
+    return clock.run_u_min_s + (clock.run_k0 - k_cont) * clock.period_s, jump
+
+
 def _advance(node: NodeState, k: int) -> None:
     """Set the watermark to k, then past every present sample that follows."""
     ring_k, mask = node.ring_k, len(node.ring_k) - 1
@@ -196,11 +268,15 @@ class Resampler:
                                       config.fs_hz)
         if state is None:
             nodes = {s.message: NodeState(ClockState(s.period_s), [_EMPTY] * s.ring_size,
-                                          [()] * s.ring_size, [False] * s.ring_size)
+                                          [()] * s.ring_size, [False] * s.ring_size,
+                                          drop_k=[_EMPTY] * s.ring_size,
+                                          drop_tag=[0] * s.ring_size)
                      for s in self._streams.values()}
             state = ResamplerState(config, nodes, [LowpassState() for _ in SENSORS_5],
                                    LowpassState(), dict.fromkeys(COUNTERS, 0),
-                                   [0] * len(SENSORS_5), [0] * len(SENSORS_5))
+                                   [0] * len(SENSORS_5), [0] * len(SENSORS_5),
+                                   gaps={s.message: dict.fromkeys(GAP_REASONS, 0)
+                                         for s in self._lateral})
         elif state.config != config:
             raise StateError(f"expected a resampler state saved with {config}, "
                              f"got one saved with {state.config}")
@@ -223,16 +299,16 @@ class Resampler:
         out, st.pending = st.pending, []
         return out
 
-    def _push(self, frame: DecodedFrame, suspect: bool) -> None:
+    def _push(self, frame: DecodedFrame, suspect: bool, arrival: int | None = None) -> None:
         st = self._st
-        t_rx = frame.timestamp_s
         stream = self._streams.get(frame.message)
-        if stream is None or frame.sample_idx is None or not math.isfinite(t_rx):
+        if stream is None or frame.sample_idx is None or not math.isfinite(frame.timestamp_s):
             st.counters["ignored_frames"] += 1
             return
-        if t_rx > st.now_s:
-            st.now_s = t_rx
-            self._release_until(t_rx - self.config.deadline_s)
+        if arrival is None:
+            arrival = st.arrivals
+            st.arrivals += 1
+        t_rx = frame.timestamp_s + st.rx_offset_s
         node = st.nodes[frame.message]
         clock = node.clock
         k = unwrap(clock, frame.sample_idx, t_rx)
@@ -241,42 +317,137 @@ class Resampler:
         if node.ring_k[slot] == k:
             st.counters["duplicate_frames"] += 1
             return
-        if (stream.lateral and st.next_j is not None and clock.started
-                and k <= math.floor(clock.index_at((st.next_j - 1) / self.config.fs_hz))):
-            st.counters["late_frames"] += 1
-            return
         k_max = clock.k_max
         seen = clock.started
         result = observe(clock, k, t_rx, self.config.clock)
-        if result == Observation.OUTLIER:
-            st.counters["outlier_frames"] += 1
+        if result != Observation.OK:
+            if result == Observation.NEW_RUN:
+                self._settle_run(stream, node, close=False)
+            node.run.append((arrival, frame, suspect, k))
+            if result == Observation.STEP:
+                self._resolve_step(stream, node)
             return
-        if result == Observation.RESYNC:
-            st.counters["resyncs"] += 1
-            node.ring_k[:] = [_EMPTY] * len(node.ring_k)
-            seen = False
-        elif seen and k < k_max:
+        if node.run:                          # a glitch, over: place its frames by index
+            self._settle_run(stream, node)
+        if t_rx > st.now_s:
+            st.now_s = t_rx
+            self._release_until(t_rx - self.config.deadline_s)
+        if stream.lateral and seen and self._is_late(node, k):
+            lat_s = t_rx - clock.time_s(k)
+            why = ("deadline" if lat_s > self.config.deadline_s else
+                   "clock" if node in self._required else "not_waited")
+            st.late[why] += 1
+            st.counters["late_frames"] += 1
+            node.drop_k[slot], node.drop_tag[slot] = k, _LATE_TAG
+            return
+        if seen and k < k_max:
             st.counters["reordered_frames"] += 1
+        self._store(stream, node, k, frame, suspect, seen)
+
+    def _is_late(self, node: NodeState, k: int) -> bool:
+        """Has the grid passed sample k of this (lateral) node?"""
+        st = self._st
+        return st.next_j is not None and k <= math.floor(
+            node.clock.index_at((st.next_j - 1) / self.config.fs_hz))
+
+    def _store(self, stream: _Stream, node: NodeState, k: int, frame: DecodedFrame,
+               suspect: bool, seen: bool) -> None:
+        """Put sample k in the ring and release what it completes."""
+        st = self._st
+        slot = k & (len(node.ring_k) - 1)
         node.ring_k[slot] = k
         node.ring_v[slot] = stream.values(frame.values)
         node.ring_suspect[slot] = suspect
+        node.k_stored = max(node.k_stored, k)
         if not stream.lateral:
             return
         if not seen:
             node.seen = True
             node.watermark = k - 1
             if st.next_j is None:
-                st.next_j = math.ceil(clock.time_s(k) * self.config.fs_hz)
+                st.next_j = math.ceil(node.clock.time_s(k) * self.config.fs_hz)
         if k == node.watermark + 1:
             _advance(node, k)
             self._release_ready()
+
+    def _settle_run(self, stream: _Stream, node: NodeState, close: bool = True) -> None:
+        """An outlier run that never ripened: place its frames by sample index where they
+        fit (at most one run's length past what the node has sent, not yet passed by the
+        grid), drop the rest. ``close`` False: the clock already holds a new run."""
+        st = self._st
+        run, node.run = node.run, []
+        if close:
+            close_run(node.clock)
+        clock = node.clock
+        half = len(node.ring_k) // 2
+        hi = max(clock.k_max, node.k_stored)
+        for _, frame, suspect, k in run:
+            slot = k & (len(node.ring_k) - 1)
+            if node.ring_k[slot] == k:
+                st.counters["duplicate_frames"] += 1
+                continue
+            fits = (clock.started and hi - half < k <= hi + len(run) + 1
+                    and (not stream.lateral or (node.seen and not self._is_late(node, k))))
+            if not fits:
+                st.counters["outlier_frames"] += 1
+                node.drop_k[slot], node.drop_tag[slot] = k, _OUTLIER_TAG
+                continue
+            st.counters["retimed_frames"] += 1
+            hi = max(hi, k)
+            self._store(stream, node, k, frame, suspect, True)
+
+    def _resolve_step(self, stream: _Stream, node: NodeState) -> None:
+        """A ripe outlier run: re-base the receive time (every lateral node stepped by the
+        same amount, index continuous) or restart this node's model; replay the held
+        frames either way."""
+        st = self._st
+        cfg = self.config.clock
+        c = node.clock
+        step_s, jump = _run_step(c)
+        continuous = -16 <= jump <= 16 + 2 * cfg.resync_hold_s / c.period_nominal_s
+        others = [st.nodes[s.message] for s in self._lateral
+                  if st.nodes[s.message] is not node and st.nodes[s.message].clock.started]
+        if continuous and all(o.clock.outliers_in_row > 0 and
+                              abs(_run_step(o.clock)[0] - step_s) <= cfg.run_spread_s
+                              for o in others):
+            st.rx_offset_s -= step_s
+            st.counters["clock_steps"] += 1
+            held = []
+            for n in st.nodes.values():
+                held.extend(n.run)
+                n.run = []
+                close_run(n.clock)
+        else:
+            held, node.run = node.run, []
+            c.started = False
+            close_run(c)
+            node.ring_k[:] = [_EMPTY] * len(node.ring_k)
+            node.k_stored = _EMPTY
+            st.counters["resyncs"] += 1
+        for arrival, frame, suspect, _ in sorted(held, key=operator.itemgetter(0)):
+            self._push(frame, suspect, arrival)
+
+    def set_excluded(self, message: str, excluded: bool) -> None:
+        """Exclude a lateral message from the grid (not waited for, entries MISSING with
+        reason ``excluded``) or take it back."""
+        if message not in {s.message for s in self._lateral}:
+            raise InputError(f"expected a lateral message from {list(LATERAL_MESSAGES)}, "
+                             f"got {message!r}")
+        self._st.nodes[message].excluded = excluded
+
+    def _run_open(self, now_s: float) -> bool:
+        """Is an outlier run being evaluated (open and young at receive time now_s)?"""
+        limit_s = RUN_BLOCK_HOLDS * self.config.clock.resync_hold_s
+        return any(n.run and now_s - n.clock.run_t0_s <= limit_s
+                   for n in self._st.nodes.values())
 
     def pop_ready(self, now_s: float) -> list[GridSample]:
         """The grid points final at receive time ``now_s`` (s), in order, each once."""
         if not math.isfinite(now_s):
             raise InputError(f"expected a finite now_s, got {now_s}")
         st = self._st
-        if now_s > st.now_s:
+        now_s += st.rx_offset_s
+        if now_s > st.now_s and not self._run_open(now_s):
             st.now_s = now_s
             if st.next_j is not None:
                 self._release_until(now_s - self.config.deadline_s)
@@ -286,6 +457,9 @@ class Resampler:
     def flush(self) -> list[GridSample]:
         """End of stream: finalise every grid point up to the newest sample, and pop."""
         st = self._st
+        for stream in self._streams.values():
+            if st.nodes[stream.message].run:
+                self._settle_run(stream, st.nodes[stream.message])
         if st.next_j is not None:
             ends = [n.clock.time_s(n.clock.k_max) for n in st.nodes.values()
                     if n.seen and n.clock.started]
@@ -311,7 +485,9 @@ class Resampler:
             dict(zip(SENSORS_5, st.not_available, strict=True)), c["speed_missing"],
             c["late_frames"], c["duplicate_frames"], c["reordered_frames"],
             c["outlier_frames"], c["resyncs"], c["ignored_frames"],
-            {m: n.clock.drift_ppm for m, n in st.nodes.items()})
+            {m: n.clock.drift_ppm for m, n in st.nodes.items()}, dict(st.late),
+            {m: dict(g) for m, g in st.gaps.items()}, c["clock_steps"], st.rx_offset_s,
+            c["retimed_frames"], tuple(m for m, n in st.nodes.items() if n.excluded))
 
     # ------------------------------------------------------------------ grid
     def _release_ready(self) -> None:
@@ -322,6 +498,8 @@ class Resampler:
             t = st.next_j / fs
             for node in self._required:
                 c = node.clock
+                if node.excluded:
+                    continue
                 if not node.seen or node.watermark <= math.floor(
                         c.k_ref + (t - c.offset_s) / c.period_s):
                     return
@@ -352,7 +530,9 @@ class Resampler:
         qual = [_MISSING] * len(SENSORS_5)
         for stream in self._lateral:
             node = st.nodes[stream.message]
-            if not node.seen:
+            gaps = st.gaps[stream.message]
+            if node.excluded or not node.seen:
+                gaps["excluded" if node.excluded else "not_seen"] += 1
                 continue
             c = node.clock
             kf = c.k_ref + (t - c.offset_s) / c.period_s
@@ -360,6 +540,10 @@ class Resampler:
             mask = len(node.ring_k) - 1
             s0, s1 = k0 & mask, (k0 + 1) & mask
             if node.ring_k[s0] != k0 or node.ring_k[s1] != k0 + 1:
+                tag = (node.drop_tag[s0] if node.drop_k[s0] == k0 and node.ring_k[s0] != k0
+                       else node.drop_tag[s1] if node.drop_k[s1] == k0 + 1 else 0)
+                gaps["late" if tag == _LATE_TAG else "outlier" if tag == _OUTLIER_TAG
+                     else "lost"] += 1
                 continue
             f = kf - k0
             v0, v1 = node.ring_v[s0], node.ring_v[s1]
