@@ -189,7 +189,7 @@ class Service:
             late, gaps, resyncs = rs.late_frames, sum(rs.missing.values()), rs.resyncs
         priority_error = p.worker.stats.priority_error if p is not None else None
         return HealthFlags(
-            state_quarantined=bool(self.store.problems),
+            state_quarantined=bool(self.store.quarantined),
             persistence_failing=self.store.write_failures > 0,
             priority_not_applied=bool(priority_error),
             front_end_resyncing=resyncs > self._resyncs_reported,

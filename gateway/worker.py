@@ -18,9 +18,11 @@ Process hygiene: a worker dies with its parent (``PR_SET_PDEATHSIG`` = SIGKILL, 
 watchdog thread on multiprocessing's parent sentinel pipe where prctl is missing or the
 parent died before it was set). It ignores SIGINT and SIGTERM (they are blocked from
 before its interpreter starts), so a Ctrl-C or a process-group signal reaches only the
-parent, which stops the worker and writes the final checkpoint. The worker lowers its
-CPU priority (``os.nice``); whether that worked is reported to the parent
-(:attr:`WorkerStats.priority_error`), never silently dropped.
+parent, which stops the worker and writes the final checkpoint. (Linux sends the
+death signal when the *thread* that spawned the worker ends: spawn workers from the
+thread that supervises them for their whole life, as the service and replay do.)
+The worker lowers its CPU priority (``os.nice``); whether that worked is reported to
+the parent (:attr:`WorkerStats.priority_error`), never silently dropped.
 """
 
 from __future__ import annotations

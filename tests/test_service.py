@@ -452,3 +452,19 @@ def test_a_signal_to_the_process_group_stops_cleanly_with_a_final_checkpoint(tmp
         assert _wait(lambda: all(_gone(p) for p in workers), 10)
     finally:
         run.close()
+
+
+def test_a_quarantined_state_file_raises_its_health_flag_and_status(tmp_path):
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "alert_policy.json").write_text("{not json")
+    cfg = with_overrides(Config(), {"bus.interface": "virtual",
+                                    "bus.channel": f"q-{time.monotonic_ns()}",
+                                    "state.directory": str(state)})
+    svc = Service(cfg)
+    try:
+        flags = svc.health_flags()
+    finally:
+        svc.close()
+    assert flags.state_quarantined and flags.names() == ["state-quarantined"]
+    assert list(state.glob("alert_policy.json.corrupt-*"))

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import can
 import pytest
 from vcanlib import CAN_EFF_FLAG, CAN_SFF_MASK, RawCan, kernel_filters, wait_for
 
 from gateway.canbus import open_bus
+from gateway.config import Config, with_overrides
+from gateway.service import Service
 from gateway.source import BusSource, BusState
 
 pytestmark = pytest.mark.vcan
@@ -65,3 +69,44 @@ def test_bus_source_with_filters_gets_sensor_frames_and_error_frames(channel, co
         assert wait_for(lambda: src.stats.error_frames == 1)
         assert src.stats.bus_state is BusState.BUS_OFF
         assert src.stats.frames_rx == 1 and src.get() is None
+
+
+def _rx_packets(channel: str) -> int:
+    return int(Path(f"/sys/class/net/{channel}/statistics/rx_packets").read_text())
+
+
+def test_a_foreign_flood_never_reaches_the_service_in_python(channel, codec, tmp_path):
+    """The bus exactly as the service opens it (``Service.source``): 20 000 frames of
+    foreign ids pass the interface (its kernel counter), none reaches the receive thread
+    (frames_rx counts every frame Python takes off the socket), none is dropped."""
+    cfg = with_overrides(Config(), {"bus.interface": "socketcan", "bus.channel": channel,
+                                    "state.directory": str(tmp_path / "state")})
+    svc = Service(cfg)
+    sensors = set(codec.sensor_ids())
+    foreign = [i for i in range(CAN_SFF_MASK + 1) if i not in sensors]
+    marker = codec.encode_message(
+        "VEH_Speed", {"VEH_Speed_SampleIdx": 9, "VEH_Speed": 42.5, "VEH_Odometer": 0.0}, 4)
+    n_flood = 20_000
+    svc.source.start()
+    try:
+        assert svc.source.opened.wait(60)
+        before = _rx_packets(channel)
+        with RawCan(channel) as tx:
+            for k in range(n_flood):
+                can_id = foreign[k % len(foreign)]
+                if k % 10 == 9:                     # 29-bit, a sensor id's low 11 bits
+                    can_id = CAN_EFF_FLAG | 0x1000000 | codec.sensor_ids()[k % len(sensors)]
+                tx.send(can_id, k.to_bytes(4, "little").ljust(8, b"\0"))
+            tx.send(marker.arbitration_id, bytes(marker.data))
+        assert wait_for(lambda: svc.source.stats.frames_rx >= 1)
+        msg = svc.source.get(1.0)
+        passed = _rx_packets(channel) - before
+        stats = svc.source.stats
+        assert msg is not None and bytes(msg.data) == bytes(marker.data)
+        assert svc.source.get() is None
+    finally:
+        svc.close()
+    assert passed >= n_flood + 1, passed            # the kernel saw the whole flood
+    assert stats.frames_rx == 1, stats              # Python saw only the sensor frame
+    assert stats.dropped_kernel == 0 and stats.dropped_queue_full == 0, stats
+    print(f"\nflood: {passed} frames on {channel}, {stats.frames_rx} reached Python")
