@@ -14,6 +14,7 @@ import numpy as np
 
 from firmware_sim.nodes import (
     FRAME_TIME_S,
+    NODE_BY_NAME,
     NODES,
     SAMPLE_INDEX_MODULUS,
     FramePacker,
@@ -42,6 +43,14 @@ class SimConfig:
     t0_s: float = 0.0
     block_s: float = 1.0
     nodes: tuple[str, ...] = ("WSN", "BGN", "BDN", "VEH")
+    second_sender: str | None = None
+    """A second node sending the same message as this one (a masquerader with valid CRCs,
+    its own clock, alive counter and SampleIdx ``second_sender_idx_offset`` ahead, values
+    x ``second_sender_gain``); it is named ``<node>2`` in ``records``."""
+    second_sender_gain: float = 1.5
+    second_sender_idx_offset: int = 20_000
+    second_sender_window_s: tuple[float, float] = (0.0, float("inf"))
+    """The second sender sends only in [start, stop), s."""
 
 
 @dataclass
@@ -70,6 +79,14 @@ class Simulation:
         self._rng_truth, self._rng_noise, self._rng_bus, rng_clock = (
             np.random.default_rng(s) for s in seeds)
         self.nodes: list[NodeSpec] = [n for n in NODES if n.node in config.nodes]
+        self._idx_offset: dict[str, int] = {}
+        self._gain: dict[str, float] = {}
+        if config.second_sender is not None:
+            twin = NODE_BY_NAME[config.second_sender]
+            rogue = NodeSpec(f"{twin.node}2", twin.message, twin.signals, twin.period_s)
+            self.nodes.append(rogue)
+            self._idx_offset[rogue.node] = config.second_sender_idx_offset
+            self._gain[rogue.node] = config.second_sender_gain
         self.clocks = {n.node: NodeClock(
             drift_ppm=float(rng_clock.uniform(-1, 1) * config.max_drift_ppm),
             phase_s=float(rng_clock.uniform(0, n.period_s))) for n in self.nodes}
@@ -132,7 +149,8 @@ class Simulation:
                 col = SENSORS_5.index(quantity)
                 clean = np.interp(t_true, t_grid, outputs[:, col])
                 std = float(np.sqrt(SENSOR_NOISE_VAR[quantity]))
-                values[quantity] = clean + self._rng_noise.standard_normal(len(k)) * std
+                values[quantity] = (clean * self._gain.get(node.node, 1.0)
+                                    + self._rng_noise.standard_normal(len(k)) * std)
             elif quantity == "speed":
                 values[quantity] = np.interp(t_true, t_grid, speed)
                 step_m = values[quantity] * node.period_s
@@ -140,6 +158,9 @@ class Simulation:
                 self._odometer_m = float(values["odometer"][-1])
         counters = counters_from(state, len(k))
         keep = np.ones(len(k), dtype=bool)
+        if node.node in self._idx_offset:
+            start_s, stop_s = cfg.second_sender_window_s
+            keep &= (t_true >= start_s) & (t_true < stop_s)
         bad_crc = np.zeros(len(k), dtype=bool)
         # a node's transmit queue is FIFO: its frames never overtake each other
         t_bus = np.maximum.accumulate(np.maximum(
@@ -160,7 +181,7 @@ class Simulation:
                 rec.values.setdefault(q, []).append(v[keep])
         raws = {signal: packer.raw(signal, values[q]) for q, signal in node.signals}
         idx_signal = f"{node.message}_SampleIdx"
-        raws[idx_signal] = k % SAMPLE_INDEX_MODULUS
+        raws[idx_signal] = (k + self._idx_offset.get(node.node, 0)) % SAMPLE_INDEX_MODULUS
         payloads = packer.pack({s: r[keep] for s, r in raws.items()}, counters[keep])
         t_bus = (t_true + latency)[keep]
         out = []

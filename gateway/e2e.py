@@ -14,7 +14,7 @@ Pure functions plus one streaming checker whose state is an explicit frozen reco
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from gateway.errors import FrameError, GatewayError
 
@@ -193,3 +193,122 @@ class CounterCheck:
     def reset(self) -> None:
         """Forget the last counter; the next one is INITIAL."""
         self._state = CounterState()
+
+
+# ---------------------------------------------------------------- masquerade detection
+SAMPLE_INDEX_MODULUS = 1 << 16
+"""Sensor frames carry a 16-bit sample index beside the alive counter."""
+IDX_JUMP_REASONS: tuple[str, ...] = ("idx_jump", "idx_back", "idx_repeat")
+"""Sample-index breaks the counter does not explain: ``idx_jump`` forward by more than
+:data:`SenderParams.max_step` or not as far as the counter moved, ``idx_back`` backwards
+(other than a one-frame overtake), ``idx_repeat`` the same index again."""
+
+
+@dataclass(frozen=True)
+class SenderParams:
+    """Settings of the two-sender detector (per CAN id).
+
+    A frame *continues* a sequence when its index moved 1..``max_step`` and its counter
+    moved the same amount modulo 15. The detector keeps two sequences: the primary and
+    the one the last unexplained jump started. Frames alternating between them are
+    *switches*; a block of ``block_frames`` frames with ``raise_switches`` or more raises
+    the flag, ``clear_blocks`` blocks in a row with fewer clear it (hysteresis). A
+    second sequence continued ``promote_after`` times with no primary frame in between
+    replaces the primary (the node restarted: one sender, no switches).
+    """
+
+    max_step: int = 16
+    block_frames: int = 64
+    raise_switches: int = 8
+    clear_blocks: int = 16
+    promote_after: int = 3
+
+
+@dataclass
+class SenderState:
+    """What the detector carries for one id (plain, picklable)."""
+
+    primary: tuple[int, int] | None = None
+    """(counter, sample index) of the primary sequence's newest frame."""
+    second: tuple[int, int] | None = None
+    last_track: int = 0
+    """1 primary, 2 second, 0 none yet."""
+    second_run: int = 0
+    block_n: int = 0
+    block_switches: int = 0
+    clean_blocks: int = 0
+    two_senders: bool = False
+    events: int = 0
+    """Times the flag was raised."""
+    second_frames: int = 0
+    """Frames that continued the second sequence."""
+    jumps: dict[str, int] = field(default_factory=lambda: dict.fromkeys(IDX_JUMP_REASONS, 0))
+
+
+def _continues(last: tuple[int, int], counter: int, idx: int, max_step: int) -> int:
+    """1 if (counter, idx) continues the sequence ending in ``last``, -1 if it is the frame
+    one before it (overtaken), else 0."""
+    di = (idx - last[1]) % SAMPLE_INDEX_MODULUS
+    dc = (counter - last[0]) % COUNTER_MODULUS
+    if 1 <= di <= max_step and di % COUNTER_MODULUS == dc:
+        return 1
+    if di == SAMPLE_INDEX_MODULUS - 1 and dc == COUNTER_MODULUS - 1:
+        return -1
+    return 0
+
+
+class SenderCheck:
+    """Streaming two-sender detector for one CAN id: alive counter + sample index.
+
+    E2E profile 1 cannot tell a masquerader with a valid CRC from the real node, but two
+    senders on one id interleave two counter/index sequences, which one node never does.
+    :meth:`feed` returns the track the frame belongs to (1 primary, 2 second, 0 a jump).
+    """
+
+    def __init__(self, params: SenderParams | None = None,
+                 state: SenderState | None = None) -> None:
+        self.params = params or SenderParams()
+        self.state = state if state is not None else SenderState()
+
+    def feed(self, counter: int, idx: int) -> int:
+        """Classify one frame's (counter 0..14, sample index 0..65535) and advance."""
+        p, st = self.params, self.state
+        track = 1
+        if st.primary is None:
+            st.primary = (counter, idx)
+        elif (c := _continues(st.primary, counter, idx, p.max_step)) != 0:
+            if c > 0:
+                st.primary = (counter, idx)
+            st.second_run = 0
+        elif st.second is not None and (c := _continues(st.second, counter, idx,
+                                                        p.max_step)) != 0:
+            track = 2
+            st.second_frames += 1
+            if c > 0:
+                st.second = (counter, idx)
+                st.second_run += 1
+            if st.second_run >= p.promote_after and st.last_track != 1:
+                st.primary, st.second, st.second_run, track = st.second, None, 0, 1
+        else:
+            di = (idx - st.primary[1]) % SAMPLE_INDEX_MODULUS
+            why = ("idx_repeat" if di == 0 else
+                   "idx_back" if di >= SAMPLE_INDEX_MODULUS // 2 else "idx_jump")
+            st.jumps[why] += 1
+            st.second, st.second_run, track = (counter, idx), 0, 0
+        if track and st.last_track and track != st.last_track:
+            st.block_switches += 1
+        if track:
+            st.last_track = track
+        st.block_n += 1
+        if st.block_n >= p.block_frames:
+            if st.block_switches >= p.raise_switches:
+                st.clean_blocks = 0
+                if not st.two_senders:
+                    st.two_senders = True
+                    st.events += 1
+            elif st.two_senders:
+                st.clean_blocks += 1
+                if st.clean_blocks >= p.clear_blocks:
+                    st.two_senders = False
+            st.block_n = st.block_switches = 0
+        return track

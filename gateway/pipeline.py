@@ -26,7 +26,7 @@ from gateway.codec import Codec
 from gateway.config import Config, EstimatorConfig
 from gateway.gating import Gate, GateConfig
 from gateway.records import Alert, Estimate, GridSample, Sample
-from gateway.resample import Resampler, ResamplerConfig
+from gateway.resample import LATERAL_MESSAGES, Resampler, ResamplerConfig
 from gateway.validate import Validator
 from gateway.worker import BLOCK_SAMPLES, WorkerLink, WorkerSettings
 
@@ -84,12 +84,69 @@ def gate_config(cfg: Config) -> GateConfig:
                       curve_yaw_rate_max_radps=g.curve_yaw_rate_max_radps)
 
 
+@dataclass(frozen=True)
+class FrontEndStats:
+    """What the front end made of the traffic so far: for the replay report, the health
+    frame and the console (``docs/resampler.md``, "Front-end statistics").
+
+    Counts are totals since start. ``rejected``: frames refused by validation, by reason
+    (incl. ``two_senders``). ``late``: frames dropped because the grid had passed their
+    sample, by reason (:data:`gateway.resample.LATE_REASONS`). ``gaps``: per lateral
+    message, grid points with its entries MISSING, by reason
+    (:data:`gateway.resample.GAP_REASONS`). ``gating``: samples per gating reason
+    (``updated`` = measurement updates). ``clock_steps``: receive-clock steps re-based
+    (``rx_offset_s`` the correction in force, s); ``resyncs``: node clock models
+    restarted; ``retimed_frames``: frames with a disbelieved receive time placed by
+    their SampleIdx; ``outlier_frames``: such frames that fitted nowhere and were
+    dropped. ``sample_idx_jumps``: per message, SampleIdx breaks the alive counter does
+    not explain, by reason (:data:`gateway.e2e.IDX_JUMP_REASONS`). ``two_senders``: the
+    messages flagged now (two interleaved counter/SampleIdx sequences on one id; their
+    frames are rejected, so they are excluded from the estimator); ``two_sender_events``:
+    per message, times that flag was raised.
+    """
+
+    frames: int
+    accepted: int
+    rejected: dict[str, int]
+    grid_points: int
+    late: dict[str, int]
+    gaps: dict[str, dict[str, int]]
+    gating: dict[str, int]
+    clock_steps: int
+    rx_offset_s: float
+    resyncs: int
+    retimed_frames: int
+    outlier_frames: int
+    duplicate_frames: int
+    sample_idx_jumps: dict[str, dict[str, int]]
+    two_senders: tuple[str, ...]
+    two_sender_events: dict[str, int]
+
+    @property
+    def late_total(self) -> int:
+        """Frames dropped as late, all reasons."""
+        return sum(self.late.values())
+
+    @property
+    def gap_points(self) -> int:
+        """Grid points x messages with MISSING entries, all reasons."""
+        return sum(sum(g.values()) for g in self.gaps.values())
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON types (the replay report's ``front_end``)."""
+        out = dataclasses.asdict(self)
+        out["two_senders"] = list(self.two_senders)
+        return out
+
+
 class FrontEnd:
     """Frames to estimator samples: Validator -> Resampler -> Gate, no worker, no clock.
 
     The part of the pipeline before the estimator, shared by :class:`Pipeline` and the
     offline readers of CAN logs. ``speed_mps`` (offline use only) stands in for the
-    vehicle's speed frames: every grid point is gated with that speed.
+    vehicle's speed frames: every grid point is gated with that speed. A lateral message
+    the validator flags with two senders is excluded from the grid until the flag
+    clears.
     """
 
     def __init__(self, cfg: Config, codec: Codec, *, speed_mps: float | None = None) -> None:
@@ -97,11 +154,33 @@ class FrontEnd:
         self.resampler = Resampler(resampler_config(cfg))
         self.gate = Gate(gate_config(cfg))
         self.speed_mps = speed_mps
+        self._lateral = {codec.message(m).frame_id: self.validator.messages[m]
+                         for m in LATERAL_MESSAGES}
+        self._excluded: set[str] = set()
 
     def on_frame(self, msg: can.Message) -> list[Sample]:
         """One received frame (any id); rejected frames are counted, never raised."""
         frame = self.validator.feed(msg)
+        m = self._lateral.get(msg.arbitration_id)
+        if m is not None and m.two_senders != (m.name in self._excluded):
+            self._excluded.symmetric_difference_update((m.name,))
+            self.resampler.set_excluded(m.name, m.two_senders)
+            log.warning("%s: %s", m.name, "two senders on one id: excluded from the estimator"
+                        if m.two_senders else "single sender again: back in the estimator")
         return [] if frame is None else self._gate(self.resampler.push(frame))
+
+    def stats(self) -> FrontEndStats:
+        """A snapshot of the front end's counters."""
+        v, r = self.validator, self.resampler.stats()
+        return FrontEndStats(
+            frames=v.stats.frames, accepted=v.stats.accepted, rejected=dict(v.stats.rejected),
+            grid_points=r.grid_points, late=r.late, gaps=r.gaps, gating=self.gate.counts,
+            clock_steps=r.clock_steps, rx_offset_s=r.rx_offset_s, resyncs=r.resyncs,
+            retimed_frames=r.retimed_frames, outlier_frames=r.outlier_frames,
+            duplicate_frames=r.duplicate_frames,
+            sample_idx_jumps={n: m.sample_idx_jumps for n, m in v.messages.items()},
+            two_senders=v.two_senders(),
+            two_sender_events={n: m.sender.state.events for n, m in v.messages.items()})
 
     def on_time(self, now_s: float) -> list[Sample]:
         """Advance time (receive clock): deadlines, message timeouts."""

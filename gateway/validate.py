@@ -2,11 +2,19 @@
 
 A frame is *accepted* (handed to the resampler) or *rejected* with one reason:
 ``unknown_id``, ``frame_type``, ``dlc``, ``crc``, ``counter`` (invalid value 15),
-``range`` (from the codec), ``counter_repeated`` (the alive counter did not move: a
-replayed or frozen sender) or ``not_sensor`` (a known non-sensor message, e.g. another
-gateway's output). A counter jump is accepted but its lost frames are counted. A
-message times out when nothing valid arrived for ``timeout_cycles`` x its
-``GenMsgCycleTime``. Core stage: no I/O, time from frame timestamps.
+``range`` (from the codec), ``two_senders`` (see below), ``counter_repeated`` (the
+alive counter did not move: a replayed or frozen sender) or ``not_sensor`` (a known
+non-sensor message, e.g. another gateway's output). A counter jump is accepted but
+its lost frames are counted. A message times out when nothing valid arrived for
+``timeout_cycles`` x its ``GenMsgCycleTime``.
+
+Every sensor frame's (alive counter, SampleIdx) also goes through the two-sender
+detector (:class:`gateway.e2e.SenderCheck`): sample-index breaks the counter does not
+explain are counted by reason (``sample_idx_jumps``), and while two interleaved
+sequences are seen on one id (a masquerader with valid CRCs, or a second node with the
+same id) the message is flagged ``two_senders`` and all its frames are rejected with
+reason ``two_senders``, until the flag clears (hysteresis in
+:class:`gateway.e2e.SenderParams`). Core stage: no I/O, time from frame timestamps.
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ from dataclasses import dataclass, field
 import can
 
 from gateway.codec import Codec, DecodedFrame
-from gateway.e2e import COUNTER_MODULUS, CounterCheck, CounterStatus
+from gateway.e2e import COUNTER_MODULUS, CounterCheck, CounterStatus, SenderCheck, SenderParams
 from gateway.errors import FrameError
 
 
@@ -37,6 +45,18 @@ class MessageStats:
     first_s: float = math.nan
     last_s: float = math.nan
     last_values: dict[str, float] = field(default_factory=dict)
+    sender: SenderCheck = field(default_factory=SenderCheck)
+    """The two-sender detector of this id (its state holds the SampleIdx jump counts)."""
+
+    @property
+    def two_senders(self) -> bool:
+        """Two interleaved counter/SampleIdx sequences seen (flag, with hysteresis)."""
+        return self.sender.state.two_senders
+
+    @property
+    def sample_idx_jumps(self) -> dict[str, int]:
+        """SampleIdx breaks the alive counter does not explain, by reason."""
+        return dict(self.sender.state.jumps)
 
     @property
     def lost_net(self) -> int:
@@ -65,7 +85,8 @@ class ValidatorStats:
 class Validator:
     """Decodes and validates frames of the sensor messages; keeps per-message state."""
 
-    def __init__(self, codec: Codec, *, timeout_cycles: float = 10.0) -> None:
+    def __init__(self, codec: Codec, *, timeout_cycles: float = 10.0,
+                 sender_params: SenderParams | None = None) -> None:
         self._codec = codec
         self._sensor_ids = set(codec.sensor_ids())
         self._counters: dict[int, CounterCheck] = {i: CounterCheck() for i in self._sensor_ids}
@@ -74,7 +95,8 @@ class Validator:
         self.messages: dict[str, MessageStats] = {}
         for name in codec.sensor_messages():
             cycle_ms = codec.cycle_time_ms(name) or 1000
-            self.messages[name] = MessageStats(name, cycle_ms / 1000.0)
+            self.messages[name] = MessageStats(name, cycle_ms / 1000.0,
+                                               sender=SenderCheck(sender_params))
         self._by_id = {codec.message(n).frame_id: self.messages[n] for n in self.messages}
 
     def _reject(self, reason: str, stats: MessageStats | None) -> None:
@@ -94,6 +116,11 @@ class Validator:
         if stats is None:
             self._reject("not_sensor", None)
             return None
+        if frame.sample_idx is not None:
+            stats.sender.feed(frame.counter, frame.sample_idx)
+            if stats.sender.state.two_senders:
+                self._reject("two_senders", stats)
+                return None
         check = self._counters[msg.arbitration_id]
         last = check.state.last_counter
         if last is not None and (frame.counter - last) % COUNTER_MODULUS == COUNTER_MODULUS - 1:
@@ -118,6 +145,10 @@ class Validator:
         stats.timed_out = False
         stats.last_values = frame.values
         return frame
+
+    def two_senders(self) -> tuple[str, ...]:
+        """Messages flagged with two interleaved senders now."""
+        return tuple(n for n, m in self.messages.items() if m.two_senders)
 
     def check_timeouts(self, now_s: float) -> list[str]:
         """Messages that have just timed out at ``now_s`` (each counted once per outage)."""
