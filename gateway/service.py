@@ -182,18 +182,18 @@ class Service:
         """The faults the service runs on with, for GW_HealthFlags, STATUS= and the console."""
         p = self.pipeline
         late = gaps = resyncs = 0
-        if p is not None:
-            # Front-end hook (issue 12): the resampler's own counters until the pipeline's
-            # FrontEnd reports late/gap samples by reason; then sum its reasons here.
-            rs = p.resampler.stats()
-            late, gaps, resyncs = rs.late_frames, sum(rs.missing.values()), rs.resyncs
+        two_senders = False
+        if p is not None:               # the front end's counters, every reason summed
+            fe = p.front.stats()
+            late, resyncs, two_senders = fe.late_total, fe.resyncs, bool(fe.two_senders)
+            gaps = fe.gap_points
         priority_error = p.worker.stats.priority_error if p is not None else None
         return HealthFlags(
             state_quarantined=bool(self.store.quarantined),
             persistence_failing=self.store.write_failures > 0,
             priority_not_applied=bool(priority_error),
             front_end_resyncing=resyncs > self._resyncs_reported,
-            two_senders=False,  # two-senders hook (issue 12 finding 8): no detector yet
+            two_senders=two_senders,
             late_frames=late, gap_samples=gaps, write_failures=self.store.write_failures,
             resyncs=resyncs)
 
