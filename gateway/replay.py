@@ -26,7 +26,7 @@ from gateway.alerts import AlertPolicy
 from gateway.codec import default_codec
 from gateway.config import Config
 from gateway.errors import InputError
-from gateway.pipeline import Pipeline
+from gateway.pipeline import FrontEndStats, Pipeline
 from gateway.records import Alert, Estimate
 
 log = logging.getLogger(__name__)
@@ -78,6 +78,8 @@ class ReplayResult:
     frames: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
     grid_points: int = 0
+    front_end: FrontEndStats | None = None
+    """Late and gap samples by reason, clock steps, SampleIdx jumps, two senders."""
 
 
 def replay(path: str | Path, cfg: Config, *, speed: float = 0.0, jsonl: IO[str] | None = None,
@@ -124,4 +126,5 @@ def replay(path: str | Path, cfg: Config, *, speed: float = 0.0, jsonl: IO[str] 
         pipe.close()
     result.rejected = dict(pipe.validator.stats.rejected)
     result.grid_points = pipe.samples_out
+    result.front_end = pipe.front.stats()
     return result

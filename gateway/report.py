@@ -6,6 +6,13 @@ JSON layout::
      "history": [{"t_s": .., "csy_ns_per_m_mean": .., "csy_ns_per_m_std": .., ...,
                   "ess": .., "v_sy_mps": .., "v_say_mps": ..}, ...],
      "settings": {...}, "diagnostics": {...}}
+
+``gateway replay`` puts the front end's counters in ``diagnostics``: ``frames``,
+``rejected`` (by reason), ``grid_points`` and ``front_end``
+(:class:`gateway.pipeline.FrontEndStats` as a dict: ``late`` and ``gaps`` by reason,
+``gating`` with the ``updated`` count, ``clock_steps``, ``rx_offset_s``, ``resyncs``,
+``retimed_frames``, ``outlier_frames``, ``sample_idx_jumps``, ``two_senders``,
+``two_sender_events``).
 """
 
 from __future__ import annotations

@@ -75,8 +75,9 @@ COUNTERS = ("grid_points", "late_frames", "duplicate_frames", "reordered_frames"
             "outlier_frames", "resyncs", "ignored_frames", "speed_missing", "clock_steps",
             "retimed_frames")
 LATE_REASONS: tuple[str, ...] = ("deadline", "not_waited", "clock")
-"""Why a frame came after the grid had passed its sample: ``deadline`` its own latency
-exceeded ``deadline_s``; ``not_waited`` a message the grid does not wait for (not in
+"""Why a frame came after the grid had passed its sample: ``deadline`` the receive time
+(newest frame or ``pop_ready``) had passed the sample by more than ``deadline_s``, so
+the grid stopped waiting for it; ``not_waited`` a message the grid does not wait for (not in
 ``required_messages``) was slower than the others; ``clock`` the clock model placed it
 behind the grid (after a node restart or a model correction)."""
 GAP_REASONS: tuple[str, ...] = ("lost", "late", "outlier", "not_seen", "excluded")
@@ -333,8 +334,8 @@ class Resampler:
             st.now_s = t_rx
             self._release_until(t_rx - self.config.deadline_s)
         if stream.lateral and seen and self._is_late(node, k):
-            lat_s = t_rx - clock.time_s(k)
-            why = ("deadline" if lat_s > self.config.deadline_s else
+            waited_s = st.now_s - clock.time_s(k)
+            why = ("deadline" if waited_s > self.config.deadline_s else
                    "clock" if node in self._required else "not_waited")
             st.late[why] += 1
             st.counters["late_frames"] += 1

@@ -68,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
                 "fs_hz": cfg.resampler.fs_hz, "source": str(args.log)}
     diagnostics = {"frames": result.frames, "rejected": result.rejected,
                    "grid_points": result.grid_points}
+    if result.front_end is not None:           # late/gap samples by reason (issue 12)
+        diagnostics["front_end"] = result.front_end.as_dict()
     doc = report.build(result.estimates[-1], history, settings, diagnostics)
     doc["alerts"] = [alert_json(a) for a in result.alerts]
     with writing(report_path):

@@ -1,0 +1,110 @@
+"""Two senders on one CAN id (issue 12, finding 8) and SampleIdx jumps by reason.
+
+E2E profile 1 cannot reject a masquerader with a valid CRC; the validator notices the two
+interleaved alive-counter/SampleIdx sequences, counts them, flags the message and the
+front end excludes it from the grid until it is single again.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_sim.scenarios import get_scenario
+from firmware_sim.simulation import SimConfig, Simulation
+from gateway.codec import default_codec
+from gateway.config import Config
+from gateway.e2e import COUNTER_MODULUS, SenderCheck, SenderParams
+from gateway.pipeline import FrontEnd
+
+P = SenderParams()
+
+
+def _seq(n: int, idx0: int, counter0: int = 0) -> list[tuple[int, int]]:
+    return [((counter0 + i) % COUNTER_MODULUS, (idx0 + i) % 65536) for i in range(n)]
+
+
+def test_one_sender_with_loss_reorder_and_wrap_is_single():
+    frames = _seq(3000, 65000)
+    del frames[100:105]                              # lost frames
+    frames[200], frames[201] = frames[201], frames[200]  # overtaken by one
+    check = SenderCheck()
+    for c, i in frames:
+        check.feed(c, i)
+    assert not check.state.two_senders and check.state.events == 0
+    assert check.state.jumps == {"idx_jump": 0, "idx_back": 0, "idx_repeat": 0}
+
+
+def test_a_node_restart_counts_one_jump_and_no_second_sender():
+    check = SenderCheck()
+    for c, i in _seq(500, 100) + _seq(2000, 20_000, counter0=7):
+        check.feed(c, i)
+    assert check.state.jumps["idx_jump"] == 1
+    assert not check.state.two_senders and check.state.events == 0
+
+
+def test_sample_index_jumps_are_counted_by_reason():
+    check = SenderCheck()
+    frames = _seq(50, 1000)
+    c, last = frames[-1]
+    frames += [(c + 1, 990)]                         # backwards
+    frames += [(c + 2, last)]                        # the newest index again
+    frames += [(c + 3, 30_000)]                      # far forward
+    for c, i in frames:
+        check.feed(c % COUNTER_MODULUS, i)
+    assert check.state.jumps == {"idx_jump": 1, "idx_back": 1, "idx_repeat": 1}
+
+
+def test_interleaved_senders_raise_then_clear_with_hysteresis():
+    a, b = _seq(5000, 0), _seq(2000, 20_000, counter0=5)
+    check = SenderCheck()
+    raised_at = cleared_at = None
+    # a alone, then a and b interleaved, then a alone again
+    stream = a[:1000] + [x for pair in zip(a[1000:3000], b, strict=True) for x in pair] \
+        + a[3000:]
+    for n, (c, i) in enumerate(stream):
+        check.feed(c, i)
+        if check.state.two_senders and raised_at is None:
+            raised_at = n
+        if raised_at is not None and not check.state.two_senders and cleared_at is None:
+            cleared_at = n
+    assert raised_at is not None and 1000 <= raised_at <= 1000 + 2 * P.block_frames
+    assert cleared_at is not None
+    hold = P.clear_blocks * P.block_frames
+    assert 5000 + hold - P.block_frames <= cleared_at <= 5000 + hold + P.block_frames
+    assert check.state.events == 1 and check.state.second_frames > 1900
+
+
+def test_same_index_masquerader_is_still_two_senders():
+    a, b = _seq(2000, 500), _seq(2000, 500, counter0=9)  # same SampleIdx, own counter
+    check = SenderCheck()
+    for pair in zip(a, b, strict=True):
+        for c, i in pair:
+            check.feed(c, i)
+    assert check.state.two_senders
+
+
+def test_front_end_excludes_the_doubled_stream_and_takes_it_back():
+    # the second BGN sends from 2 s to 4 s with values x 1.5 and its own SampleIdx
+    sim = Simulation(get_scenario("nominal"), SimConfig(
+        duration_s=7.0, seed=3, second_sender="BGN", second_sender_window_s=(2.0, 4.0)))
+    fe = FrontEnd(Config(), default_codec())
+    out = []
+    for n, m in enumerate(sim.messages()):
+        out.extend(fe.on_frame(m))
+        if n % 1000 == 0:
+            out.extend(fe.on_time(m.timestamp))
+    out.extend(fe.finish())
+    st = fe.stats()
+    assert st.two_sender_events["BGN_Lat"] == 1 and st.two_senders == ()
+    assert st.rejected["two_senders"] > 3500        # both senders, 2 s x 2 kHz, less
+    # cleared after clear_blocks x block_frames single frames (1 kHz), block-aligned
+    hold_s = (SenderParams().clear_blocks + 1) * SenderParams().block_frames / 1000
+    assert 2000 <= st.gaps["BGN_Lat"]["excluded"] <= 2000 + 1000 * (hold_s + 1.0)
+    t = np.array([s.t_s for s in out])
+    acc_b = np.array([s.values[0] for s in out])   # 3-sensor set: acc_b, gyro_b, acc_bd
+    inside = (t > 2.1) & (t < 3.9)
+    assert np.all(np.isnan(acc_b[inside]))          # excluded while doubled
+    before, after = (t > 0.5) & (t < 1.9), (t > 4.0 + hold_s + 0.2) & (t < 6.9)
+    assert np.all(np.isfinite(acc_b[after]))        # back, single again
+    # and it is the genuine node's signal, not the x 1.5 one
+    assert 0.8 < np.std(acc_b[after]) / np.std(acc_b[before]) < 1.25
