@@ -24,6 +24,9 @@ from gateway.records import Alert, AlertState, Estimate, Severity
 
 SIDES: tuple[str, str] = ("low", "high")
 CODE_BASE: dict[str, int] = {"low": 0x10, "high": 0x20}
+CODE_TWO_SENDERS = 0x30
+"""Not a parameter alert: two senders on one sensor id (``FrontEndStats.two_senders``,
+"two senders on BGN"); the stream is excluded from the estimator meanwhile."""
 SNAPSHOT_VERSION = 1
 SEQ_BLOCK = 16
 """Seqs reserved durably at a time (``reserve``): a restart skips at most this many."""

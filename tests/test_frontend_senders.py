@@ -8,6 +8,7 @@ front end excludes it from the grid until it is single again.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
@@ -83,10 +84,13 @@ def test_same_index_masquerader_is_still_two_senders():
     assert check.state.two_senders
 
 
-def test_front_end_excludes_the_doubled_stream_and_takes_it_back():
-    # the second BGN sends from 2 s to 4 s with values x 1.5 and its own SampleIdx
+@pytest.mark.parametrize("idx_offset", [20_000, 3])
+def test_front_end_excludes_the_doubled_stream_and_takes_it_back(idx_offset):
+    # the second BGN sends from 2 s to 4 s with values x 1.5 and its own SampleIdx (far
+    # from the real one, or 3 samples ahead: inside the clock model's tolerance)
     sim = Simulation(get_scenario("nominal"), SimConfig(
-        duration_s=7.0, seed=3, second_sender="BGN", second_sender_window_s=(2.0, 4.0)))
+        duration_s=7.0, seed=3, second_sender="BGN", second_sender_window_s=(2.0, 4.0),
+        second_sender_idx_offset=idx_offset))
     fe = FrontEnd(Config(), default_codec())
     out = []
     for n, m in enumerate(sim.messages()):
