@@ -14,7 +14,7 @@ import platform
 import re
 import string
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import serial
@@ -45,7 +45,9 @@ class UsageError(InputError):
 
 @dataclass
 class Context:
-    """What a handler may use: the service, this connection's session, the PIN guard."""
+    """What a handler may use: the service, this connection's session, the PIN guard.
+    A write handler lists the seqs of the alert events it caused in ``emitted`` (the
+    console does not announce those again as unsolicited notices)."""
 
     view: ServiceView
     session: Session
@@ -53,6 +55,7 @@ class Context:
     limits: ConsoleLimits
     clock: Callable[[], float]
     port_name: str
+    emitted: list[int] = field(default_factory=list)
 
 
 Handler = Callable[[Context, list[str]], Reply]
@@ -258,6 +261,7 @@ def _ack(ctx: Context, args: list[str]) -> Reply:
         raise UsageError(f"expected 'ack <#seq|component>', got {' '.join(args)!r}")
     result = ctx.view.acknowledge(parse_alert_key(args[0]))
     alert = result.alert
+    ctx.emitted.append(alert.seq)
     text = f"acknowledged: #{alert.seq} {_label(alert.parameter)} {alert.severity.name}"
     return Reply(True, "ack", text=text, data=result.to_json())
 
@@ -268,6 +272,7 @@ def _baseline(ctx: Context, args: list[str]) -> Reply:
     parameter = _resolve(args[1])
     result = ctx.view.baseline_reset(parameter)
     cleared = [a.seq for a in result.cleared]
+    ctx.emitted.extend(cleared)
     text = (f"baseline reset: {_label(parameter)} re-learns from its prior"
             + (f"; cleared alert {', '.join(f'#{s}' for s in cleared)}" if cleared else ""))
     return Reply(True, "baseline", text=text, data=result.to_json())

@@ -13,6 +13,7 @@ handled inside a catch-all that logs and replies "internal error".
 
 from __future__ import annotations
 
+import collections
 import logging
 import time
 from collections.abc import Callable
@@ -62,6 +63,7 @@ class Console:
         self.session = Session(0, self.limits, clock, echo=echo)
         """The current connection's session (number 0 until the first :meth:`connect`)."""
         self._limited = False
+        self._own_events: collections.deque[int] = collections.deque(maxlen=64)
         self.lines_dropped = 0
         self.internal_errors = 0
 
@@ -133,8 +135,8 @@ class Console:
     def notify_alert(self, alert: Alert) -> bytes:
         """An unsolicited alert notice for the terminal (text mode only; JSON mode stays
         strictly one reply per command), then the prompt and the partial line again."""
-        if self.session.json:
-            return b""
+        if self.session.json or alert.seq in self._own_events:
+            return b""  # JSON mode, or the event this console's own command just caused
         return (to_wire(f"\n** alert: {render.alert_line(alert)}\n") + self.prompt()
                 + self._lines.partial)
 
@@ -218,8 +220,9 @@ class Console:
                 return Reply.fail(name, refusal)
             if not self._audit(name, args, "attempt", ""):
                 return Reply.fail(name, AUDIT_REFUSAL)
+        ctx = self._context()
         try:
-            reply = cmd.handler(self._context(), args)
+            reply = cmd.handler(ctx, args)
         except InputError as err:
             if cmd.write:
                 self._audit(name, args, "rejected", str(err))
@@ -235,6 +238,7 @@ class Console:
             if cmd.write:
                 self._audit(name, args, "error", f"internal error: {type(err).__name__}")
             return Reply.fail(name, f"internal error ({type(err).__name__}; logged)")
+        self._own_events.extend(ctx.emitted)
         if cmd.write:
             self._audit(name, args, "ok" if reply.ok else "rejected", result_detail(reply))
         elif name == "login" and not reply.ok:
