@@ -79,7 +79,7 @@ class ConsolePort:
 
     Usage from the service::
 
-        console = Console(view, pin_sha256=cfg.serial.pin_sha256, port_name=device)
+        console = Console(view, pin_hash=cfg.serial.pin_hash, port_name=device)
         port = ConsolePort(console, cfg.serial.device, baudrate=cfg.serial.baudrate)
         port.start()   # returns at once; the thread opens the port (and reopens it)
         port.notify_alert(alert)   # optional: alert events shown to a connected fitter
