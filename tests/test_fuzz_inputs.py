@@ -53,9 +53,12 @@ def fuzz_summary(request: pytest.FixtureRequest) -> Iterator[None]:
     line = (f"fuzz: {total} inputs, {len(TRACEBACKS)} tracebacks "
             f"({', '.join(f'{k} {v}' for k, v in COUNTS.items())}; peak RSS +{grown_mb:.0f} MB)")
     reporter = request.config.pluginmanager.get_plugin("terminalreporter")
-    if reporter is not None:
-        reporter.write_line(line)
-    print(line)
+    capture = request.config.pluginmanager.get_plugin("capturemanager")
+    if reporter is not None and capture is not None:
+        with capture.global_and_fixture_disabled():
+            reporter.write_line(line)
+    else:
+        print(line)
 
 
 def one_line(text: str) -> bool:
