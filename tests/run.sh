@@ -2,6 +2,9 @@
 # Install everything the project needs into .venv, then lint, type-check and test.
 # This is the README's second set-up command; .ci/run calls it. Extra arguments go to
 # pytest. pytest's exit status 5 (no tests ran) fails like any other failure.
+# pytest includes tests/test_packaging.py (python -m build; the wheel must hold exactly
+# the tracked sources) and tests/smoke/ (that wheel in a fresh venv outside the tree:
+# entry points, replay, live service + console, identify); -m 'not smoke' skips the latter.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
