@@ -1,9 +1,15 @@
 """The live gateway service: wires bus, pipeline, sinks, state, console and systemd.
 
 ``Service.run()`` is the daemon's main loop. SIGTERM/SIGINT stop it cleanly (final
-checkpoint, state flushed) and SIGHUP reloads the alert thresholds from the config
-file. READY=1 is sent once the bus is open and the worker runs; until the worker is up
-(its first start compiles the numba kernels, minutes on a cold cache) the start time-out
+checkpoint, state flushed). SIGHUP re-reads the config file and applies the keys in
+``RELOADABLE`` at once: ``[output] estimate_rate_hz`` and ``health_rate_hz``. A change
+to any other key is logged as needing a restart and the running value stays (the
+console's ``config`` shows what is in force); a file that fails validation is logged
+and changes nothing. Alert thresholds are not config keys: ``threshold set`` on the
+console changes them and the persisted policy keeps them.
+
+READY=1 is sent once the bus is open and the worker runs; until the worker is up (its
+first start compiles the numba kernels, minutes on a cold cache) the start time-out
 is extended by EXTEND_TIMEOUT_USEC, for at most ``STARTUP_EXTEND_LIMIT_S``. WATCHDOG=1
 only while the pipeline makes progress; STATUS= shows the live estimates.
 """
@@ -11,6 +17,7 @@ only while the pipeline makes progress; STATUS= shows the live estimates.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import math
 import signal
@@ -24,7 +31,8 @@ from typing import Any
 from gateway.busload import frame_bits_worst_case
 from gateway.canbus import BusSpec, open_bus
 from gateway.codec import Codec, default_codec
-from gateway.config import Config, load_config
+from gateway.config import Config, load_config, with_overrides
+from gateway.errors import ConfigError
 from gateway.model import PARAM_NAMES
 from gateway.pipeline import Pipeline
 from gateway.records import Alert, Estimate
@@ -43,6 +51,11 @@ STARTUP_EXTEND_EVERY_S = 5.0
 STARTUP_EXTEND_S = 30.0
 """While the worker warms up, every STARTUP_EXTEND_EVERY_S the start time-out is extended
 to STARTUP_EXTEND_S from then (systemd applies it only beyond TimeoutStartSec)."""
+RELOADABLE: tuple[tuple[str, str], ...] = (("output", "estimate_rate_hz"),
+                                          ("output", "health_rate_hz"))
+"""The (section, key)s SIGHUP applies to the running service; every other key needs a
+restart (the bus, the pipeline, the worker, the state store and the console port are
+built from them at start)."""
 STARTUP_EXTEND_LIMIT_S = 900.0
 """No extension after this long: a worker not up by then is broken, and systemd's
 time-out and Restart= take over."""
@@ -77,6 +90,9 @@ class Service:
                  console_factory: Callable[[Service], Any] | None = None) -> None:
         self.cfg = cfg
         self.config_path = config_path
+        self._file_cfg = load_config(config_path) if config_path else None
+        """The file as read at start, without command-line overrides: a reload compares
+        the file with it, so an override (``--bus``) is not taken for a change."""
         self.notifier = notifier or Notifier()
         self.codec = codec or default_codec()
         self.flags = ServiceFlags()
@@ -94,7 +110,8 @@ class Service:
                                 queue_frames=cfg.bus.rx_queue_frames,
                                 reopen_min_s=cfg.bus.reopen_min_s,
                                 reopen_max_s=cfg.bus.reopen_max_s)
-        self.can_sink = CanSink(self.codec, self.source.send, cfg.estimator.particles)
+        self.can_sink = CanSink(self.codec, self.source.send, cfg.estimator.particles,
+                                estimate_rate_hz=cfg.output.estimate_rate_hz)
         self.log_sink = LogSink()
         self.policy, history = restore_policy(self.store)   # never raises for bad state
         self.recent_alerts: collections.deque[Alert] = collections.deque(history[-50:],
@@ -144,20 +161,59 @@ class Service:
         self._old_handlers = {}
 
     def _reload(self) -> None:
+        """SIGHUP: re-read the file; apply the ``RELOADABLE`` keys, log every other
+        changed key as needing a restart; a bad file changes nothing."""
         self.flags.reload = False
-        self.notifier.reloading()
+        self.notifier.notify(RELOADING=1,
+                             MONOTONIC_USEC=time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000)
         try:
-            new = load_config(self.config_path)
+            self._apply_reload()
         except Exception as err:  # noqa: BLE001 - a bad reload keeps the running config
             log.error("reload failed, keeping the running configuration: %s", err)
+            self.notifier.notify(READY=1, STATUS=f"reload failed: {err}".replace("\n", " "))
         else:
-            changed = [s for s in ("bus", "resampler", "gating", "estimator", "state")
-                       if getattr(new, s) != getattr(self.cfg, s)]
-            if changed:
-                log.warning("reload: sections %s need a restart to take effect", changed)
-            self.cfg = new
-            log.info("configuration reloaded from %s", self.config_path)
-        self.notifier.notify(READY=1, STATUS="configuration reloaded")
+            self.notifier.notify(READY=1, STATUS="configuration reloaded")
+
+    def _apply_reload(self) -> None:
+        if self.config_path is None:
+            log.warning("reload: no config file (built-in defaults and command-line "
+                        "options only); nothing to reload")
+            return
+        new = load_config(self.config_path)
+        before = self._file_cfg or Config()
+        changes: dict[str, object] = {}
+        for section in ("bus", "resampler", "gating", "estimator", "output", "state", "serial"):
+            old_s, new_s = getattr(before, section), getattr(new, section)
+            for f in dataclasses.fields(new_s):
+                value = getattr(new_s, f.name)
+                if (section, f.name) in RELOADABLE:
+                    if value != getattr(getattr(self.cfg, section), f.name):
+                        changes[f"{section}.{f.name}"] = value
+                elif value != getattr(old_s, f.name):
+                    shown = "<redacted>" if f.name == "pin_hash" else repr(value)
+                    log.warning("reload: [%s] %s = %s in %s needs a restart to take "
+                                "effect; running with the value from start", section,
+                                f.name, shown, self.config_path)
+        if not changes:
+            log.info("reload: no reloadable key changed in %s", self.config_path)
+            return
+        # the same checks as at start, on what will run (e.g. estimate_rate_hz at most the
+        # running [estimator] output_rate_hz); a ConfigError changes nothing
+        mark = f"{self.config_path} (reload)"
+        try:
+            cfg = with_overrides(dataclasses.replace(self.cfg, source=mark), changes)
+        except ConfigError as err:
+            text = str(err).removeprefix(f"{mark} (with command-line overrides): ")
+            raise ConfigError(f"{self.config_path}: {text} (with the running values of the "
+                              f"keys that need a restart)") from err
+        cfg = dataclasses.replace(cfg, source=self.cfg.source)
+        self.can_sink.set_estimate_rate(cfg.output.estimate_rate_hz)
+        for dotted, value in changes.items():
+            section, _, key = dotted.partition(".")
+            log.info("reload: [%s] %s %r -> %r", section, key,
+                     getattr(getattr(self.cfg, section), key), value)
+        self.cfg = cfg
+        log.info("configuration reloaded from %s", self.config_path)
 
     # ------------------------------------------------------------------- loop
     def health(self) -> Health:
@@ -263,7 +319,9 @@ class Service:
                 p.poll()
                 self.view.run_pending()
                 if self.flags.reload:
-                    self._reload()
+                    self._reload()       # a new health rate counts from now, not the old tick
+                    next_health = min(next_health, time.monotonic()
+                                      + 1.0 / self.cfg.output.health_rate_hz)
                 now = time.monotonic()
                 if now >= next_health:
                     next_health = now + 1.0 / self.cfg.output.health_rate_hz
@@ -276,7 +334,9 @@ class Service:
                     next_publish = now + 0.5
                     self._count_load(now)
                     self.view.publish()
-                if now >= next_status:
+                if now >= next_status and (ready or p.worker.stats.ready):
+                    # While the worker warms up, the extension's STATUS says so: not
+                    # overwritten by "waiting for estimates" (systemctl status shows it).
                     next_status = now + 2.0
                     self.notifier.status(status_line(
                         p.last_estimate, len(self.policy.active), self.source.stats.bus_state.name,

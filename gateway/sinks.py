@@ -2,7 +2,9 @@
 
 Each sink has ``emit_*`` methods and ``close()``. The CAN sink encodes with the codec,
 keeps one alive counter per message and hands frames to a ``send`` callable (the bus
-source in the service, a list in tests and replay).
+source in the service, a list in tests and replay). It sends at most
+``estimate_rate_hz`` estimate frame sets per second of *data* time (``Estimate.t_s``):
+the worker makes estimates at ``[estimator] output_rate_hz``, the sink only drops.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import can
 
 from gateway.codec import Codec
 from gateway.e2e import next_counter
+from gateway.errors import InputError
 from gateway.model import PARAM_NAMES
 from gateway.records import Alert, AlertState, Estimate, Severity
 
@@ -26,6 +29,10 @@ EST_MESSAGES = {"csy_ns_per_m": "GW_EstCsy", "csay_ns_per_m": "GW_EstCsay",
 PARAM_CODE = {name: i for i, name in enumerate(PARAM_NAMES)}
 CONVERGED_REL_STD = 0.05
 """sigma/theta below which an estimate frame says Valid rather than Converging."""
+RATE_SLACK = 1e-3
+"""Fraction of the estimate period by which an estimate may come early and still be
+sent: data times are float grid points, so a due time may land a hair past the
+estimate of a worker that runs at the same rate."""
 
 
 @dataclass(frozen=True)
@@ -85,13 +92,54 @@ class CanSink:
     """Encodes and sends the gateway's frames; counts what it could not send."""
 
     def __init__(self, codec: Codec, send: Callable[[can.Message], bool],
-                 particles: int) -> None:
+                 particles: int, *, estimate_rate_hz: float | None = None) -> None:
+        """``estimate_rate_hz``: at most this many estimate frame sets per second of data
+        time (``[output] estimate_rate_hz``); None sends every estimate."""
         self._codec = codec
         self._send = send
         self._particles = particles
         self._counters: dict[str, int] = {}
+        self._estimate_period_s = 0.0
+        self._anchor_t_s = math.nan   # data time of the grid of due times: anchor + k * period
+        self._k = 0
+        self._last_estimate_t_s = math.nan
         self.sent = 0
         self.failed = 0
+        self.estimates_skipped = 0
+        """Estimates not sent because the next one due (on the data-time grid of period
+        1 / estimate_rate_hz) had not come yet."""
+        self.set_estimate_rate(estimate_rate_hz)
+
+    def set_estimate_rate(self, estimate_rate_hz: float | None) -> None:
+        """Change the estimate rate limit (a configuration reload); None: no limit. The
+        next set is due 1 / estimate_rate_hz of data time after the last one sent."""
+        if estimate_rate_hz is not None and not (math.isfinite(estimate_rate_hz)
+                                                 and estimate_rate_hz > 0):
+            raise InputError(f"expected a positive finite estimate rate in Hz, got "
+                             f"{estimate_rate_hz!r}")
+        self._estimate_period_s = 0.0 if estimate_rate_hz is None else 1.0 / estimate_rate_hz
+        self._anchor_t_s, self._k = self._last_estimate_t_s, 1
+
+    def _estimate_due(self, t_s: float) -> bool:
+        """Whether an estimate at data time ``t_s`` is sent (and if so, count it).
+
+        Sets are due on a grid ``anchor + k / estimate_rate_hz`` (a product, so no sum
+        drifts over hours), so 3 Hz out of a 10 Hz stream is 3 sets per data second, not
+        every 4th. A gap re-anchors the grid at the next estimate (no burst after it);
+        data time running backwards (a new run) too. A non-finite time is always sent.
+        """
+        if not math.isfinite(t_s):
+            return True
+        period = self._estimate_period_s
+        if not t_s >= self._last_estimate_t_s:          # the first, or time went back
+            self._anchor_t_s, self._k = t_s, 0
+        if t_s < self._anchor_t_s + self._k * period - period * RATE_SLACK:
+            return False
+        self._k += 1
+        if self._anchor_t_s + self._k * period <= t_s:   # fell behind the grid: a gap
+            self._anchor_t_s, self._k = t_s, 1
+        self._last_estimate_t_s = t_s
+        return True
 
     def _out(self, name: str, signals: dict[str, float | str | None]) -> None:
         counter = self._counters.get(name, 0)
@@ -103,7 +151,11 @@ class CanSink:
             self.failed += 1
 
     def emit_estimate(self, est: Estimate) -> None:
-        """One frame per parameter: mean, std, status and ESS %."""
+        """One frame per parameter: mean, std, status and ESS %; nothing when ``est.t_s``
+        comes before the next set is due (``_estimate_due``)."""
+        if not self._estimate_due(est.t_s):
+            self.estimates_skipped += 1
+            return
         ess_pct = min(100.0, 100.0 * est.ess / self._particles) if self._particles else None
         for i, name in enumerate(PARAM_NAMES):
             msg = EST_MESSAGES[name]
