@@ -223,7 +223,8 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     ("estimator", "queue_samples"): Range(100, 1_000_000),
     # at most [estimator] output_rate_hz (checked below): the CAN sink can only drop
     ("output", "estimate_rate_hz"): Range(0.01, 1000.0),
-    ("output", "health_rate_hz"): Range(0.01, 100.0),
+    # WATCHDOG=1 goes with each health tick: under the unit's WatchdogSec=10, 0.2 Hz at least
+    ("output", "health_rate_hz"): Range(0.2, 100.0),
     # non-empty: "" would silently put the state into the working directory
     ("state", "directory"): Text(1, 4096, what="a directory path"),
     ("serial", "device"): Text(0, 4096, what="a device path"),

@@ -82,6 +82,9 @@ def test_missing_file(tmp_path):
     ("[serial]\npin_sha256 = \"1234\"\n", 2, "[serial] pin_sha256: expected pin_hash"),
     ("[serial]\n\npin_hash = \"1234\"\n", 3, "[serial] pin_hash: expected"),
     ("[bus]\nchannel = \"can0\\u0000\"\n", 2, "[bus] channel: expected printable"),
+    # WATCHDOG=1 rides on the health tick: below 0.2 Hz the unit's WatchdogSec=10 would trip
+    ("[output]\nhealth_rate_hz = 0.05\n", 2, "[output] health_rate_hz: expected a value in "
+                                             "[0.2, 100]"),
 ])
 def test_domain_errors_name_file_line_and_key(tmp_path, text, line, words):
     path = tmp_path / "bad.toml"

@@ -141,6 +141,9 @@ def test_start_time_out_is_extended_until_the_worker_is_up(tmp_path, monkeypatch
     assert extends, got
     assert all(int(m["EXTEND_TIMEOUT_USEC"]) == 30_000_000 for m in extends)
     assert "warming up" in extends[0]["STATUS"]
+    # Nothing overwrites the warm-up STATUS before READY (systemctl status shows it).
+    statuses = [m["STATUS"] for m in got[:first_ready] if "STATUS" in m]
+    assert all("warming up" in st for st in statuses), statuses
 
 
 def test_worker_sigkill_resumes_from_checkpoint_within_2_s(tmp_path):
