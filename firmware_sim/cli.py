@@ -16,7 +16,17 @@ from firmware_sim.playback import playback_frames
 from firmware_sim.scenarios import SCENARIOS, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from gateway.canbus import DEFAULT_DEMO_BUS, open_bus, open_node_bus, parse_bus_spec
-from gateway.cli import SEED, OneLineParser, config_value, dispatch, output_path, real, writing
+from gateway.cli import (
+    SEED,
+    OneLineParser,
+    config_value,
+    dispatch,
+    integer,
+    output_dir,
+    output_path,
+    real,
+    writing,
+)
 from gateway.errors import FrameError, InputError
 from gateway.interchange import read_csv
 
@@ -62,7 +72,40 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--bus", default=DEFAULT_DEMO_BUS, help=f"default {DEFAULT_DEMO_BUS}")
     p.set_defaults(func=cmd_stream)
+    p = sub.add_parser("fleet", help="simulate a fleet: vehicles x days x runs, logs + truth")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir,
+                   help="directory for logs/<vehicle>/<bogie>/*.log, truth.csv, truth.json")
+    p.add_argument("--vehicles", type=integer(1, 1000), default=12)
+    p.add_argument("--days", type=integer(1, 3650), default=30)
+    p.add_argument("--runs-per-day", type=integer(1, 24), default=2)
+    p.add_argument("--run-seconds", type=real(2.0, 3600.0), default=8.0,
+                   help="length of each run, s (default 8)")
+    p.add_argument("--bogies", type=integer(1, 4), default=1)
+    p.add_argument("--degrade-days", type=real(1.0, 3650.0), default=60.0,
+                   help="days over which a degrading damper loses 30 %% (default 60)")
+    p.add_argument("--fail-frac", type=real(0.0, 1.0, lo_open=True), default=0.5,
+                   help="the failing damper fails at this fraction of the days (default 0.5)")
+    p.add_argument("--start", default="2026-01-05", help="first day, YYYY-MM-DD (UTC)")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.set_defaults(func=cmd_fleet)
     return parser
+
+
+def cmd_fleet(args: argparse.Namespace) -> int:
+    from firmware_sim.fleet import FleetSpec, simulate_fleet
+
+    spec = FleetSpec(vehicles=args.vehicles, days=args.days, runs_per_day=args.runs_per_day,
+                     run_s=args.run_seconds, bogies=args.bogies, degrade_days=args.degrade_days,
+                     fail_frac=args.fail_frac, seed=args.seed, start=args.start)
+
+    def progress(k: int, n: int) -> None:
+        if k == n or k % 10 == 0:
+            print(f"simulated {k}/{n} runs", flush=True)
+
+    with writing(args.out):
+        n = simulate_fleet(spec, args.out, progress=progress)
+    print(f"wrote {n} runs, truth.csv and truth.json to {args.out}")
+    return 0
 
 
 def cmd_list(args: argparse.Namespace) -> int:

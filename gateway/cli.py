@@ -35,6 +35,7 @@ COMMANDS: tuple[str, ...] = (
     "gateway.commands.run",
     "gateway.commands.replay",
     "gateway.commands.demo",
+    "gateway.commands.fleet",
 )
 
 

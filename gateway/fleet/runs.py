@@ -1,0 +1,135 @@
+"""One run through the gateway's own stages: a CAN log to grid samples, samples to estimates.
+
+The fleet tool's only seam to the gateway: ingest uses :func:`log_samples` (the
+service's front end: decode, validate, resample, gate, driven as ``gateway replay``
+drives it), replay uses :func:`estimate_run` (the service's estimator worker and alert
+policy, fed exactly as the pipeline feeds them). Everything else in ``gateway.fleet``
+works on :class:`RunSamples` and :class:`RunEstimates`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gateway import __version__
+from gateway.alerts import AlertPolicy, ParamPolicy, default_params
+from gateway.codec import default_codec
+from gateway.config import Config
+from gateway.model import PARAM_NAMES, THETA_NOMINAL, Theta
+from gateway.pipeline import FrontEnd, worker_settings
+from gateway.records import Alert, Estimate, Sample
+from gateway.replay import alert_json, read_log
+from gateway.worker import BLOCK_SAMPLES, WorkerLink
+
+PARAMS: tuple[str, ...] = PARAM_NAMES
+"""Csy (N s/m), Csay (N s/m), conicity (-), in the estimator's order."""
+NOMINAL: dict[str, float] = dict(zip(PARAM_NAMES, THETA_NOMINAL.as_array(), strict=True))
+ON_TIME_FRAMES = 1000
+"""Frames between ``on_time`` calls, as ``gateway.replay.replay``."""
+
+__all__ = ["NOMINAL", "PARAMS", "RunEstimates", "RunSamples", "Theta", "estimate_run",
+           "estimator_version", "log_samples", "thresholds"]
+
+
+@dataclass(frozen=True)
+class RunSamples:
+    """The front end's output for one log. ``t_s`` (K,) receive time, s (the log's clock);
+    ``values`` (K, ny) SI units, NaN = missing; ``speed_mps`` (K,); ``update`` (K,) bool;
+    ``sensors`` the ny sensor names; ``frames`` read, ``rejected`` by reason."""
+
+    t_s: np.ndarray
+    values: np.ndarray
+    speed_mps: np.ndarray
+    update: np.ndarray
+    sensors: tuple[str, ...]
+    frames: int
+    rejected: dict[str, int]
+
+
+@dataclass(frozen=True)
+class RunEstimates:
+    """What the estimator made of one run: ``t_s`` (E,), ``mean``/``std`` (E, 3) in
+    :data:`PARAMS` order and units; ``alerts`` as ``gateway replay`` reports them."""
+
+    t_s: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    ess: np.ndarray
+    alerts: tuple[dict[str, object], ...]
+
+
+def thresholds() -> dict[str, ParamPolicy]:
+    """The gateway's alert thresholds (``gateway.alerts.default_params``), by parameter."""
+    return default_params()
+
+
+def estimator_version(cfg: Config) -> str:
+    """The gateway version plus a hash of every estimator setting: results are keyed by it,
+    so a new estimator or new settings re-process every run, and old results stay."""
+    settings = json.dumps({"estimator": dataclasses.asdict(cfg.estimator),
+                           "resampler_fs_hz": cfg.resampler.fs_hz}, sort_keys=True)
+    return f"{__version__}-{hashlib.sha256(settings.encode()).hexdigest()[:10]}"
+
+
+def log_samples(path: str | Path, cfg: Config) -> RunSamples:
+    """Frames of a CAN log through the service's front end; InputError for a bad log."""
+    front = FrontEnd(cfg, default_codec())
+    out: list[Sample] = []
+    frames = 0
+    for msg in read_log(path):
+        if msg.is_error_frame:
+            continue
+        out += front.on_frame(msg)
+        frames += 1
+        if frames % ON_TIME_FRAMES == 0:
+            out += front.on_time(msg.timestamp)
+    out += front.finish()
+    ny = len(out[0].values) if out else cfg.estimator.sensors
+    from gateway.model import SENSORS_3, SENSORS_5
+
+    sensors = SENSORS_3 if ny == 3 else SENSORS_5
+    return RunSamples(
+        t_s=np.array([s.t_s for s in out], dtype=np.float64),
+        values=np.array([s.values for s in out], dtype=np.float64).reshape(len(out), ny),
+        speed_mps=np.array([s.speed_mps for s in out], dtype=np.float64),
+        update=np.array([s.update for s in out], dtype=bool),
+        sensors=sensors, frames=frames, rejected=dict(front.validator.stats.rejected))
+
+
+def estimate_run(samples: RunSamples, cfg: Config) -> RunEstimates:
+    """The service's estimator worker and alert policy over stored samples (replay-style:
+    blocking queue, so the result does not depend on the machine's speed)."""
+    estimates: list[Estimate] = []
+    alerts: list[Alert] = []
+    policy = AlertPolicy()
+
+    def handle(batch: list[Estimate]) -> None:
+        for est in batch:
+            estimates.append(est)
+            alerts.extend(policy.step(est))
+
+    link = WorkerLink(worker_settings(cfg),
+                      queue_blocks=max(2, cfg.estimator.queue_samples // BLOCK_SAMPLES),
+                      blocking=True, keep_spare=False)
+    try:
+        for k in range(0, len(samples.t_s), BLOCK_SAMPLES):
+            link.send([Sample(float(samples.t_s[i]), samples.values[i],
+                              float(samples.speed_mps[i]), bool(samples.update[i]))
+                       for i in range(k, min(k + BLOCK_SAMPLES, len(samples.t_s)))])
+            handle(link.poll())
+        handle(link.drain())
+    finally:
+        handle(link.close())
+    n = len(estimates)
+    return RunEstimates(
+        t_s=np.array([e.t_s for e in estimates], dtype=np.float64),
+        mean=np.array([e.mean[:3] for e in estimates], dtype=np.float64).reshape(n, 3),
+        std=np.array([e.std[:3] for e in estimates], dtype=np.float64).reshape(n, 3),
+        ess=np.array([e.ess for e in estimates], dtype=np.float64),
+        alerts=tuple(alert_json(a) for a in alerts))

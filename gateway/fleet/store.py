@@ -1,0 +1,248 @@
+"""The fleet's Parquet store: ingest logs once (idempotent by content hash), list and read runs.
+
+Layout of a store directory (hive partitions, so pyarrow, Dask and DuckDB read it as one
+dataset)::
+
+    manifest.jsonl                                   one line per ingested file
+    samples/vehicle=V/bogie=B/day=YYYY-MM-DD/run-<id>.parquet     front-end output
+    results/estimator=<ver>/vehicle=V/bogie=B/day=D/run-<id>.parquet   replay output
+
+A run's id is the first 16 hex digits of the SHA-256 of the log's bytes: a file seen
+before (under any name) is skipped, so re-ingesting counts nothing twice. Every file
+is written to a temporary name and renamed into place; the manifest line is appended
+(and fsynced) after the rename, and a crash in between only means the same file is
+rewritten identically next time. One ingest at a time per store (a lock file).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import re
+import uuid
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from gateway.config import Config
+from gateway.errors import InputError
+from gateway.fleet.runs import RunSamples, log_samples
+
+log = logging.getLogger(__name__)
+
+LOG_SUFFIXES = (".log", ".asc", ".blf")
+MANIFEST = "manifest.jsonl"
+NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+EPOCH_MIN_S = 946_684_800.0
+"""2000-01-01 UTC: a log whose clock starts before this has relative timestamps."""
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """One ingested log (a manifest line). ``t0_s``/``t1_s`` first and last grid time,
+    s since the Unix epoch; ``grid_points`` 0 when the front end made no sample."""
+
+    run_id: str
+    sha256: str
+    source: str
+    vehicle: str
+    bogie: str
+    day: str
+    t0_s: float
+    t1_s: float
+    grid_points: int
+    frames: int
+    sensors: tuple[str, ...]
+
+    @property
+    def samples_path(self) -> str:
+        """Relative to the store."""
+        return (f"samples/vehicle={self.vehicle}/bogie={self.bogie}/day={self.day}/"
+                f"run-{self.run_id}.parquet")
+
+
+@dataclass(frozen=True)
+class IngestReport:
+    """What one ingest did: runs added, files skipped as already stored (by hash)."""
+
+    added: tuple[RunInfo, ...]
+    skipped: tuple[str, ...]
+
+
+def check_name(kind: str, text: str) -> str:
+    """A vehicle or bogie name safe as a path part; InputError otherwise."""
+    if not NAME.match(text) or "=" in text:
+        raise InputError(f"expected a {kind} name of letters, digits, '_', '.', '-' "
+                         f"(at most 64), got {text!r}")
+    return text
+
+
+def write_atomic_table(table: pa.Table, path: Path) -> None:
+    """Write a Parquet file under a unique temporary name, fsync, rename into ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    try:
+        pq.write_table(table, tmp)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+class Store:
+    """A store directory (created on first ingest)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise InputError(f"expected a fleet store directory, got file {str(self.root)!r}")
+
+    # ---------------------------------------------------------------- manifest
+    def runs(self) -> list[RunInfo]:
+        """Every ingested run, in ingest order (a torn last line is ignored)."""
+        path = self.root / MANIFEST
+        if not path.is_file():
+            return []
+        out = []
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            try:
+                d = json.loads(line)
+                d["sensors"] = tuple(d["sensors"])
+                out.append(RunInfo(**d))
+            except (ValueError, TypeError, KeyError) as err:
+                log.warning("%s:%d: unreadable manifest line skipped (%s)", path, n, err)
+        return out
+
+    def _append(self, info: RunInfo) -> None:
+        with open(self.root / MANIFEST, "a", encoding="utf-8") as f:
+            f.write(json.dumps(asdict(info), sort_keys=True) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    @contextlib.contextmanager
+    def locked(self) -> Iterator[None]:
+        """Hold the store's ingest lock (one writer at a time)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        with open(self.root / ".lock", "w") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise InputError(f"expected no other ingest running on {self.root}, got its "
+                                 f"lock held") from None
+            yield
+
+    # ------------------------------------------------------------------ ingest
+    def ingest(self, paths: Sequence[str | Path], cfg: Config, *, vehicle: str | None = None,
+               bogie: str | None = None,
+               progress: Callable[[int, int], None] | None = None) -> IngestReport:
+        """Ingest CAN logs (files, or directories searched for .log/.asc/.blf)."""
+        files = discover(paths, vehicle, bogie)
+        added: list[RunInfo] = []
+        skipped: list[str] = []
+        with self.locked():
+            known = {r.sha256 for r in self.runs()}
+            for k, (path, veh, bog) in enumerate(files):
+                sha = file_sha256(path)
+                if sha in known:
+                    skipped.append(str(path))
+                else:
+                    info = self._ingest_one(path, sha, veh, bog, cfg)
+                    known.add(sha)
+                    added.append(info)
+                if progress is not None:
+                    progress(k + 1, len(files))
+        return IngestReport(tuple(added), tuple(skipped))
+
+    def _ingest_one(self, path: Path, sha: str, vehicle: str, bogie: str,
+                    cfg: Config) -> RunInfo:
+        s = log_samples(path, cfg)
+        if len(s.t_s) and not s.t_s[0] >= EPOCH_MIN_S:
+            raise InputError(f"expected absolute (Unix epoch) timestamps in {str(path)!r} to "
+                             f"date the run, got a clock starting at {s.t_s[0]:.3f} s")
+        t0 = float(s.t_s[0]) if len(s.t_s) else float("nan")
+        day = (dt.datetime.fromtimestamp(t0, dt.UTC).date().isoformat() if len(s.t_s)
+               else "unknown")
+        info = RunInfo(run_id=sha[:16], sha256=sha, source=str(path.resolve()), vehicle=vehicle,
+                       bogie=bogie, day=day, t0_s=t0,
+                       t1_s=float(s.t_s[-1]) if len(s.t_s) else float("nan"),
+                       grid_points=len(s.t_s), frames=s.frames, sensors=s.sensors)
+        if len(s.t_s):
+            write_atomic_table(samples_table(s, info), self.root / info.samples_path)
+        else:
+            log.warning("%s: no grid sample (frames %d, rejected %s)", path, s.frames,
+                        s.rejected)
+        self._append(info)
+        return info
+
+    # -------------------------------------------------------------------- read
+    def samples(self, info: RunInfo) -> RunSamples:
+        """The stored front-end output of a run."""
+        return read_samples(self.root / info.samples_path)
+
+
+def samples_table(s: RunSamples, info: RunInfo) -> pa.Table:
+    cols = {"t_s": s.t_s, "speed_mps": s.speed_mps, "update": s.update}
+    cols.update({name: s.values[:, j] for j, name in enumerate(s.sensors)})
+    meta = {"railgw.run_id": info.run_id, "railgw.sensors": json.dumps(list(s.sensors)),
+            "railgw.frames": str(s.frames), "railgw.rejected": json.dumps(s.rejected),
+            "railgw.source": info.source}
+    return pa.table(cols).replace_schema_metadata(meta)
+
+
+def read_samples(path: Path) -> RunSamples:
+    table = pq.read_table(path)
+    meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()}
+    sensors = tuple(json.loads(meta["railgw.sensors"]))
+    values = np.column_stack([table.column(n).to_numpy() for n in sensors])
+    return RunSamples(t_s=table.column("t_s").to_numpy(),
+                      values=np.ascontiguousarray(values, dtype=np.float64),
+                      speed_mps=table.column("speed_mps").to_numpy(),
+                      update=table.column("update").to_numpy(zero_copy_only=False),
+                      sensors=sensors, frames=int(meta["railgw.frames"]),
+                      rejected=json.loads(meta["railgw.rejected"]))
+
+
+def discover(paths: Sequence[str | Path], vehicle: str | None,
+             bogie: str | None) -> list[tuple[Path, str, str]]:
+    """(file, vehicle, bogie) for every log under ``paths``, sorted. Inside a directory a
+    log at ``VEHICLE/BOGIE/.../file`` (relative to it) is named by those two folders;
+    ``vehicle``/``bogie`` override them (and name loose files)."""
+    out: list[tuple[Path, str, str]] = []
+    for p in map(Path, paths):
+        if p.is_file():
+            found = [(p, ())]
+        elif p.is_dir():
+            found = [(f, f.relative_to(p).parts[:-1]) for f in sorted(p.rglob("*"))
+                     if f.is_file() and f.suffix.lower() in LOG_SUFFIXES]
+        else:
+            raise InputError(f"expected a CAN log or a directory, got {str(p)!r} (not found)")
+        for f, parts in found:
+            if f.suffix.lower() not in LOG_SUFFIXES:
+                raise InputError(f"expected a CAN log ending in {list(LOG_SUFFIXES)}, "
+                                 f"got {str(f)!r}")
+            veh = vehicle or (parts[0] if len(parts) >= 2 else None)
+            bog = bogie or (parts[1] if len(parts) >= 2 else None)
+            if veh is None or bog is None:
+                raise InputError(f"expected {str(f)!r} under VEHICLE/BOGIE/ folders, or "
+                                 f"--vehicle and --bogie, got neither")
+            out.append((f, check_name("vehicle", veh), check_name("bogie", bog)))
+    return out
