@@ -26,7 +26,12 @@ SIDES: tuple[str, str] = ("low", "high")
 CODE_BASE: dict[str, int] = {"low": 0x10, "high": 0x20}
 CODE_TWO_SENDERS = 0x30
 """Not a parameter alert: two senders on one sensor id (``FrontEndStats.two_senders``,
-"two senders on BGN"); the stream is excluded from the estimator meanwhile."""
+"two senders on BGN"); the stream is excluded from the estimator meanwhile. Always
+ADVISORY, parameter :func:`sender_parameter` (``node:BGN``), ``value_rel`` NaN (on the
+bus: GW_Alert_Param and GW_Alert_ValueRel NotAvailable), side :data:`SENDERS_SIDE`."""
+SENDERS_SIDE = "senders"
+"""The ``side`` :func:`decode_code` gives :data:`CODE_TWO_SENDERS`."""
+NODE_PREFIX = "node:"
 SNAPSHOT_VERSION = 1
 SEQ_BLOCK = 16
 """Seqs reserved durably at a time (``reserve``): a restart skips at most this many."""
@@ -39,13 +44,23 @@ def alert_code(parameter: str, severity: Severity, side: str) -> int:
     return CODE_BASE[side] + 3 * PARAM_NAMES.index(parameter) + int(severity)
 
 
+def sender_parameter(message: str) -> str:
+    """The alert parameter of two senders on ``message``: ``node:BGN`` for ``BGN_Lat``."""
+    return NODE_PREFIX + message.split("_", 1)[0]
+
+
 def decode_code(code: int) -> tuple[str, Severity, str]:
-    """``(parameter, severity, side)`` of an alert code; InputError for an unknown code."""
+    """``(parameter, severity, side)`` of an alert code; InputError for an unknown code.
+    :data:`CODE_TWO_SENDERS` gives ``("node", ADVISORY, SENDERS_SIDE)`` (the node is in
+    the alert's ``parameter``)."""
+    if code == CODE_TWO_SENDERS:
+        return NODE_PREFIX[:-1], Severity.ADVISORY, SENDERS_SIDE
     for side, base in CODE_BASE.items():
         k = code - base - 1
         if 0 <= k < 3 * len(PARAM_NAMES):
             return PARAM_NAMES[k // 3], Severity(k % 3 + 1), side
-    raise InputError(f"expected an alert code in 0x11..0x19 or 0x21..0x29, got {code:#x}")
+    raise InputError(f"expected an alert code in 0x11..0x19, 0x21..0x29 or 0x30, "
+                     f"got {code:#x}")
 
 
 def _side_problem(side: str, levels: Levels, hysteresis_rel: float) -> str | None:
@@ -189,6 +204,8 @@ class AlertPolicy:
         self.seq_unreserved = 0
         """Events emitted with a seq whose reservation could not be persisted."""
         self._tracks = {name: _Track() for name in self._config.params}
+        self._senders: dict[str, tuple[int, Alert]] = {}
+        """Active two-sender alerts: parameter -> (seq of the RAISED event, latest event)."""
         self._overrides: list[tuple[str, int, str, float | None]] = []
         self.restore_problems: list[str] = []  # persisted overrides that no longer validate
 
@@ -203,8 +220,40 @@ class AlertPolicy:
 
     @property
     def active(self) -> tuple[Alert, ...]:
-        """The latest event (RAISED or ACKNOWLEDGED) of each active alert, by parameter."""
-        return tuple(tr.last for tr in self._tracks.values() if tr.severity and tr.last)
+        """The latest event (RAISED or ACKNOWLEDGED) of each active alert, by parameter
+        (suspension parameters first, then two-sender alerts)."""
+        return tuple(tr.last for tr in self._tracks.values() if tr.severity and tr.last) + \
+            tuple(last for _, last in self._senders.values())
+
+    # -- two senders ---------------------------------------------------------------
+    def two_senders_active(self, message: str) -> bool:
+        """Is a two-sender alert active for ``message`` (e.g. ``BGN_Lat``)?"""
+        return sender_parameter(message) in self._senders
+
+    def two_senders(self, message: str, flagged: bool, t_s: float) -> list[Alert]:
+        """The front end's two-sender flag of ``message`` at data time ``t_s``: RAISED
+        (ADVISORY, :data:`CODE_TWO_SENDERS`) when it is set and no such alert is active,
+        CLEARED when it is clear and one is; else no event. One alert per episode."""
+        if not (isinstance(t_s, int | float) and math.isfinite(t_s)):
+            raise InputError(f"expected a finite data time t_s, got {t_s!r}")
+        param = sender_parameter(message)
+        node = param[len(NODE_PREFIX):]
+        if flagged and param not in self._senders:
+            alert = self._sender_event(param, AlertState.RAISED, t_s,
+                                       f"two senders on {node} ({message}): its frames are "
+                                       f"excluded from the estimator")
+            self._senders[param] = (alert.seq, alert)
+            return [alert]
+        if not flagged and param in self._senders:
+            del self._senders[param]
+            return [self._sender_event(param, AlertState.CLEARED, t_s,
+                                       f"single sender on {node} ({message}) again")]
+        return []
+
+    def _sender_event(self, param: str, state: AlertState, t_s: float,
+                      message: str) -> Alert:
+        return Alert(self._take_seq(), t_s, param, Severity.ADVISORY, state,
+                     CODE_TWO_SENDERS, math.nan, message)
 
     def baseline_times(self) -> dict[str, float | None]:
         """Data time of the last baseline reset per parameter (None: never)."""
@@ -282,18 +331,22 @@ class AlertPolicy:
                                       f"{rel:.3f} of nominal"))
         return events
 
-    def _event(self, name: str, tr: _Track, sev: int, side: str, state: AlertState,
-               t_s: float, message: str) -> Alert:
+    def _take_seq(self) -> int:
+        """The next seq, reserved durably first when the reserved block is used up."""
         if self._reserve is not None and self._next_seq >= self._reserved_upto:
             upto = self._next_seq + SEQ_BLOCK
             if self._reserve(upto):
                 self._reserved_upto = upto
             else:
                 self.seq_unreserved += 1
-        alert = Alert(self._next_seq, t_s, name, Severity(sev), state,
-                      alert_code(name, Severity(sev), side), tr.value_rel, message)
+        seq = self._next_seq
         self._next_seq += 1
-        return alert
+        return seq
+
+    def _event(self, name: str, tr: _Track, sev: int, side: str, state: AlertState,
+               t_s: float, message: str) -> Alert:
+        return Alert(self._take_seq(), t_s, name, Severity(sev), state,
+                     alert_code(name, Severity(sev), side), tr.value_rel, message)
 
     def _raise(self, name: str, tr: _Track, sev: int, side: str, t_s: float,
                message: str) -> Alert:
@@ -322,6 +375,18 @@ class AlertPolicy:
         latest) event; returns the ACKNOWLEDGED event. InputError if none matches."""
         if not (isinstance(t_s, int | float) and math.isfinite(t_s)):
             raise InputError(f"expected a finite data time t_s, got {t_s!r}")
+        sender = [p for p, (raised, last) in self._senders.items()
+                  if key == p or (not isinstance(key, bool | str) and key in (raised, last.seq))]
+        if sender:
+            raised, last = self._senders[sender[0]]
+            if last.state == AlertState.ACKNOWLEDGED:
+                raise InputError(f"expected a RAISED alert, got alert {raised} "
+                                 f"({sender[0]}) already ACKNOWLEDGED")
+            alert = self._sender_event(sender[0], AlertState.ACKNOWLEDGED, t_s,
+                                       f"two senders on {sender[0][len(NODE_PREFIX):]} "
+                                       f"acknowledged")
+            self._senders[sender[0]] = (raised, alert)
+            return alert
         if isinstance(key, str):
             name, tr = key, self._track(key)
             if not tr.severity:
@@ -330,7 +395,8 @@ class AlertPolicy:
             found = [(n, t) for n, t in self._tracks.items() if t.severity and t.last
                      and key in (t.raised_seq, t.last.seq)]
             if isinstance(key, bool) or not found:
-                seqs = [t.raised_seq for t in self._tracks.values() if t.severity]
+                seqs = [t.raised_seq for t in self._tracks.values() if t.severity] + [
+                    raised for raised, _ in self._senders.values()]
                 raise InputError(f"expected the seq of an active alert {seqs}, got {key!r}")
             name, tr = found[0]
         if tr.acknowledged:
@@ -393,8 +459,11 @@ class AlertPolicy:
         params = {name: dataclasses.asdict(tr) for name, tr in self._tracks.items()}
         for d in params.values():
             d["value_rel"] = d["value_rel"] if math.isfinite(d["value_rel"]) else None
+        senders = {p: [raised, {**dataclasses.asdict(last), "value_rel": None}]
+                   for p, (raised, last) in self._senders.items()}
         return {"version": SNAPSHOT_VERSION, "next_seq": self._next_seq,
-                "overrides": [list(o) for o in self._overrides], "params": params}
+                "overrides": [list(o) for o in self._overrides], "params": params,
+                "senders": senders}
 
     @classmethod
     def restore(cls, snapshot: Mapping[str, Any] | None, config: PolicyConfig | None = None,
@@ -453,10 +522,25 @@ class AlertPolicy:
                 value_rel = math.nan if d["value_rel"] is None else float(d["value_rel"])
                 self._tracks[name] = _Track(**{**d, "last": last, "since": since,
                                                "value_rel": value_rel})
+        for param, (raised, d) in snap.get("senders", {}).items():
+            last = _alert_from_json({**d, "value_rel": math.nan})
+            if not (isinstance(raised, int) and last.code == CODE_TWO_SENDERS
+                    and param.startswith(NODE_PREFIX)):
+                raise ValueError(f"expected a two-sender alert, got {param!r}: {d!r}")
+            self._senders[param] = (raised, last)
 
     def _apply(self, alert: Alert) -> None:
         """Replay one persisted event onto the active set (restore)."""
         self._next_seq = max(self._next_seq, alert.seq + 1)
+        if alert.code == CODE_TWO_SENDERS:
+            if alert.state == AlertState.RAISED:
+                self._senders[alert.parameter] = (alert.seq, alert)
+            elif alert.parameter in self._senders:
+                if alert.state == AlertState.CLEARED:
+                    del self._senders[alert.parameter]
+                else:
+                    self._senders[alert.parameter] = (self._senders[alert.parameter][0], alert)
+            return
         tr = self._tracks.get(alert.parameter)
         if tr is None:
             return

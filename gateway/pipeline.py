@@ -102,7 +102,9 @@ class FrontEndStats:
     not explain, by reason (:data:`gateway.e2e.IDX_JUMP_REASONS`). ``two_senders``: the
     messages flagged now (two interleaved counter/SampleIdx sequences on one id; their
     frames are rejected, so they are excluded from the estimator); ``two_sender_events``:
-    per message, times that flag was raised.
+    per message, times that flag was raised. ``horizon``: receive times beyond a horizon,
+    by reason (:data:`gateway.resample.HORIZON_REASONS`); ``grid_jump_points``: grid
+    points skipped by grid jumps over empty time (never emitted).
     """
 
     frames: int
@@ -121,6 +123,8 @@ class FrontEndStats:
     sample_idx_jumps: dict[str, dict[str, int]]
     two_senders: tuple[str, ...]
     two_sender_events: dict[str, int]
+    horizon: dict[str, int] = field(default_factory=dict)
+    grid_jump_points: int = 0
 
     @property
     def late_total(self) -> int:
@@ -156,6 +160,8 @@ class FrontEnd:
         self.speed_mps = speed_mps
         self._lateral = {codec.message(m).frame_id: self.validator.messages[m]
                          for m in LATERAL_MESSAGES}
+        self._by_id = {codec.message(m).frame_id: stats
+                       for m, stats in self.validator.messages.items()}
         self._excluded: set[str] = set()
 
     def on_frame(self, msg: can.Message) -> list[Sample]:
@@ -169,6 +175,15 @@ class FrontEnd:
                         if m.two_senders else "single sender again: back in the estimator")
         return [] if frame is None else self._gate(self.resampler.push(frame))
 
+    def two_senders_of(self, frame_id: int) -> tuple[str, bool] | None:
+        """``(message, two-senders flag now)`` of a sensor id; None for another id."""
+        m = self._by_id.get(frame_id)
+        return None if m is None else (m.name, m.two_senders)
+
+    def data_time_s(self) -> float:
+        """Data time now: the grid's next point, s (NaN before the grid starts)."""
+        return self.resampler.grid_time_s()
+
     def stats(self) -> FrontEndStats:
         """A snapshot of the front end's counters."""
         v, r = self.validator, self.resampler.stats()
@@ -180,7 +195,8 @@ class FrontEnd:
             duplicate_frames=r.duplicate_frames,
             sample_idx_jumps={n: m.sample_idx_jumps for n, m in v.messages.items()},
             two_senders=v.two_senders(),
-            two_sender_events={n: m.sender.state.events for n, m in v.messages.items()})
+            two_sender_events={n: m.sender.state.events for n, m in v.messages.items()},
+            horizon=r.horizon, grid_jump_points=r.grid_jump_points)
 
     def on_time(self, now_s: float) -> list[Sample]:
         """Advance time (receive clock): deadlines, message timeouts."""
@@ -226,6 +242,8 @@ class Pipeline:
                                  on_checkpoint=on_checkpoint, keep_spare=keep_spare)
         self._on_estimate = on_estimate
         self._on_alert = on_alert
+        self._front_alerts: list[Alert] = []
+        """Front-end alert events (two senders) not yet in a poll's Output."""
         self._block: list[Sample] = []
         self.last_estimate: Estimate | None = None
         self.samples_out = 0
@@ -234,8 +252,20 @@ class Pipeline:
 
     # ------------------------------------------------------------------ input
     def on_frame(self, msg: can.Message) -> None:
-        """One received frame (any id); rejected frames are counted, never raised."""
+        """One received frame (any id); rejected frames are counted, never raised. A
+        change of the frame's two-sender flag goes to the alert policy (raise or clear),
+        and its events to ``on_alert`` like every other alert."""
         self._forward(self.front.on_frame(msg))
+        senders = self.front.two_senders_of(msg.arbitration_id)
+        if senders is not None and senders[1] != self.policy.two_senders_active(senders[0]):
+            t_s = self.front.data_time_s()
+            if not math.isfinite(t_s):
+                t_s = self.last_estimate.t_s if self.last_estimate is not None else 0.0
+            t_s = t_s if math.isfinite(t_s) else 0.0
+            for alert in self.policy.two_senders(senders[0], senders[1], t_s):
+                self._front_alerts.append(alert)
+                if self._on_alert is not None:
+                    self._on_alert(alert)
 
     def on_time(self, now_s: float) -> None:
         """Advance time (receive clock): deadlines, message timeouts."""
@@ -270,7 +300,8 @@ class Pipeline:
         return self._handle(self.worker.drain())
 
     def _handle(self, estimates: list[Estimate]) -> Output:
-        out = Output()
+        out = Output(alerts=self._front_alerts)
+        self._front_alerts = []
         for est in estimates:
             self._update_rtf(est.t_s)
             self.last_estimate = est

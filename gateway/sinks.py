@@ -46,13 +46,16 @@ class HealthFlags:
     priority_not_applied: bool = False
     """The estimator worker could not lower its CPU priority."""
     front_end_resyncing: bool = False
-    """The front end re-synchronised a node clock since the previous report."""
+    """The front end re-synchronised a node clock or re-based a receive-clock step since
+    the previous report."""
     two_senders: bool = False
     """Two interleaved senders seen on one sensor id."""
     late_frames: int = 0
     gap_samples: int = 0
     write_failures: int = 0
     resyncs: int = 0
+    """Node-clock resyncs plus receive-clock steps re-based (``FrontEndStats.resyncs +
+    clock_steps``)."""
 
     def names(self) -> list[str]:
         """The raised flags, short names for the STATUS line and the log."""
@@ -170,7 +173,7 @@ class CanSink:
         self._out("GW_Alert", {
             "GW_Alert_Seq": alert.seq, "GW_Alert_Code": min(alert.code, 254),
             "GW_Alert_Severity": int(alert.severity),
-            "GW_Alert_Param": PARAM_CODE.get(alert.parameter, 7),
+            "GW_Alert_Param": PARAM_CODE.get(alert.parameter),   # else NotAvailable
             "GW_Alert_State": int(alert.state),
             "GW_Alert_ValueRel": alert.value_rel if math.isfinite(alert.value_rel) else None})
 

@@ -54,7 +54,7 @@ def test_codes_table_and_round_trip():
             for sev in Severity:
                 assert decode_code(alert_code(name, sev, side)) == (name, sev, side)
     with pytest.raises(InputError, match="expected an alert code"):
-        decode_code(0x30)
+        decode_code(0x31)           # 0x30 is two senders (tests/test_two_senders_alert.py)
 
 
 def test_csy_drop_warning_then_alarm_then_clear():
