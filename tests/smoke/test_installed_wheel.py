@@ -9,6 +9,7 @@ filter kernels compiles them in the fresh venv (1-2 min, once per session).
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import re
@@ -251,7 +252,7 @@ def test_live_service_frames_console_and_sigterm(installed: Installed):
                     if e["event"] == "frame" and e["message"] == name]
 
         for name in ("GW_EstCsy", "GW_EstCsay", "GW_EstConicity", "GW_Health"):
-            _wait_for(lambda name=name: frames(name), 60, f"a {name} frame off the bus", proc)
+            _wait_for(functools.partial(frames, name), 60, f"a {name} frame off the bus", proc)
         _wait_for(lambda: any(v["GW_Health_FramesRx"] > 0 for v in frames("GW_Health")), 30,
                   "a health frame counting received sensor frames", proc)
         assert not [e for e in _events(events) if e["event"] == "bad_frame"]
