@@ -215,7 +215,7 @@ def _raised(term: Terminal, after_seq: int = 0) -> dict[str, Any] | None:
     reply = term.json_command("alerts")
     assert reply["ok"], reply
     active = [a for a in reply["data"]["active"] if a["state"] == "RAISED"
-              and a["seq"] > after_seq]
+              and a["seq"] > after_seq and a["parameter"] in COMPONENT]
     return active[0] if active else None
 
 
