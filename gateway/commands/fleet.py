@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -34,6 +35,8 @@ def _replay_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=integer(1, 1024),
                    help="LocalCluster worker processes (default: the machine's cores)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--attempts-dir", metavar="DIR",
+                   help="write one file per task execution there (an audit of retries)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -111,8 +114,16 @@ def run_ingest(args: argparse.Namespace) -> int:
 def _replay(store: Any, cfg: Config, args: argparse.Namespace) -> Any:
     from gateway.fleet.replay import dask_client, replay_store
 
-    with dask_client(args.scheduler, args.workers) as client:
-        rep = replay_store(store, cfg, client, progress=not args.no_progress)
+    for name in ("distributed", "tornado"):      # the cluster's INFO chatter
+        logging.getLogger(name).setLevel(logging.WARNING)
+    try:
+        with dask_client(args.scheduler, args.workers) as client:
+            rep = replay_store(store, cfg, client, progress=not args.no_progress,
+                               attempts_dir=args.attempts_dir)
+    except KeyboardInterrupt:
+        print("interrupted: finished runs are kept; the same command resumes",
+              file=sys.stderr)
+        raise SystemExit(130) from None
     print(f"replayed {rep.ran} runs on {rep.workers} Dask workers in {rep.wall_s:.1f} s "
           f"({rep.runs_per_s:.3f} runs/s); {rep.done_before} of {rep.runs} already done; "
           f"estimator {rep.version}")

@@ -1,0 +1,119 @@
+"""The fleet loop on a tiny simulated fleet: simulate, ingest, replay on a LocalCluster, report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("distributed")
+pytest.importorskip("pyarrow")
+
+from firmware_sim.fleet import FleetSpec, simulate_fleet  # noqa: E402
+from gateway.config import Config, with_overrides  # noqa: E402
+from gateway.fleet.replay import dask_client, replay_store, result_path  # noqa: E402
+from gateway.fleet.report import build_report  # noqa: E402
+from gateway.fleet.runs import estimator_version  # noqa: E402
+from gateway.fleet.store import Store  # noqa: E402
+
+SPEC = FleetSpec(vehicles=3, days=6, runs_per_day=1, run_s=6.0, degrade_days=10.0,
+                 fail_frac=0.5, seed=3)
+CFG = with_overrides(Config(), {"estimator.particles": 100})
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("fleet")
+    simulate_fleet(SPEC, root / "sim")
+    store = Store(root / "store")
+    first = store.ingest([root / "sim" / "logs"], CFG)
+    assert len(first.added) == SPEC.vehicles * SPEC.days and not first.skipped
+    attempts = root / "attempts"
+    attempts.mkdir()
+    with dask_client(workers=2) as client:
+        rep = replay_store(store, CFG, client, attempts_dir=str(attempts), progress=False)
+    assert (rep.ran, rep.done_before, rep.workers) == (len(first.added), 0, 2)
+    build_report(store, estimator_version(CFG), root / "report")
+    return {"root": root, "store": root / "store", "report": root / "report",
+            "attempts": attempts}
+
+
+def test_ingest_is_idempotent(fleet: dict[str, Path]) -> None:
+    store = Store(fleet["store"])
+    before = store.runs()
+    files = sorted((fleet["store"] / "samples").rglob("*.parquet"))
+    again = store.ingest([fleet["root"] / "sim" / "logs"], CFG)
+    assert again.added == () and len(again.skipped) == len(before)
+    assert store.runs() == before
+    assert sorted((fleet["store"] / "samples").rglob("*.parquet")) == files
+    assert {(r.vehicle, r.bogie) for r in before} == {("V01", "B1"), ("V02", "B1"),
+                                                       ("V03", "B1")}
+    assert all(r.grid_points > 5000 and r.day.startswith("2026-01-") for r in before)
+
+
+def test_each_run_replayed_once_with_one_result(fleet: dict[str, Path]) -> None:
+    store = Store(fleet["store"])
+    runs = store.runs()
+    version = estimator_version(CFG)
+    assert all(result_path(fleet["store"].resolve(), version, r).is_file() for r in runs)
+    results = list((fleet["store"] / "results").rglob("*.parquet"))
+    assert len(results) == len(runs)
+    attempts = [p.name.split(".")[0] for p in fleet["attempts"].iterdir()]
+    assert sorted(attempts) == sorted(r.run_id for r in runs)
+    assert not list((fleet["store"]).rglob("*.tmp"))
+
+
+def test_report_ranks_failed_and_degrading_first(fleet: dict[str, Path]) -> None:
+    truth = json.loads((fleet["root"] / "sim" / "truth.json").read_text())
+    lines = (fleet["report"] / "ranking.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [dict(zip(header, line.split(","), strict=True)) for line in lines[1:]]
+    roles = [truth["units"][f"{r['vehicle']}/{r['bogie']}"]["role"] for r in rows]
+    assert roles[-1] == "nominal", roles
+    assert set(roles[:2]) == {"csy-failing", "csy-degrading"}, roles
+
+
+def test_failed_damper_crossing_interval_brackets_truth(fleet: dict[str, Path]) -> None:
+    truth = json.loads((fleet["root"] / "sim" / "truth.json").read_text())
+    lines = (fleet["report"] / "trends.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [dict(zip(header, line.split(","), strict=True)) for line in lines[1:]]
+    failing = [u for u, v in truth["units"].items() if v["role"] == "csy-failing"]
+    assert len(failing) == 1
+    veh, bog = failing[0].split("/")
+    row = next(r for r in rows if (r["vehicle"], r["bogie"], r["parameter"]) == (veh, bog,
+                                                                                 "Csy"))
+    true_s = truth["units"][failing[0]]["crossings"]["csy_ns_per_m"]["advisory"]
+    assert row["status"] == "crossed"
+    assert float(row["crossing_lo_s"]) <= true_s <= float(row["crossing_hi_s"])
+    for r in rows:                      # a predicted crossing must bracket the true one
+        if r["crossing_s"] not in ("", "nan") and r["status"] == "trending":
+            unit = truth["units"][f"{r['vehicle']}/{r['bogie']}"]
+            key = {"Csy": "csy_ns_per_m", "Csay": "csay_ns_per_m", "λ": "conicity"}
+            t_true = unit["crossings"][key[r["parameter"]]]["advisory"]
+            assert t_true is not None, r
+            assert float(r["crossing_lo_s"]) <= t_true <= float(r["crossing_hi_s"]), r
+
+
+def test_report_files_and_self_contained_html(fleet: dict[str, Path]) -> None:
+    out = fleet["report"]
+    for name in ("ranking.csv", "trends.csv", "runs.csv", "alerts.csv", "fleet.png",
+                 "unit-V01-B1.png", "report.html"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 4
+    assert "src='http" not in page and 'src="http' not in page
+
+
+def test_sql_over_the_store(fleet: dict[str, Path]) -> None:
+    duckdb = pytest.importorskip("duckdb")
+    store = Store(fleet["store"])
+    q = (f"SELECT vehicle, count(*) AS n FROM read_parquet("
+         f"'{fleet['store']}/samples/**/*.parquet', hive_partitioning=true) "
+         f"GROUP BY vehicle ORDER BY vehicle")
+    got = dict(duckdb.sql(q).fetchall())
+    want: dict[str, int] = {}
+    for r in store.runs():
+        want[r.vehicle] = want.get(r.vehicle, 0) + r.grid_points
+    assert got == want
