@@ -19,7 +19,7 @@ fi
 echo "== creating .venv and installing the project with its test tools"
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
-.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[dev]'
+.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[dev,fleet]'
 echo "== ruff"
 .venv/bin/ruff check .
 echo "== mypy"

@@ -88,8 +88,8 @@ def load_runs(store: Store, version: str) -> list[RunRow]:
         meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()}
         last = {c: table.column(c)[-1].as_py() for c in table.column_names}
         rows.append(RunRow(info.vehicle, info.bogie, info.run_id, float(last["t_s"]),
-                           tuple(last[f"{p}_mean"] / NOMINAL[p] for p in PARAMS),  # type: ignore[arg-type]
-                           tuple(last[f"{p}_std"] / NOMINAL[p] for p in PARAMS),  # type: ignore[arg-type]
+                           tuple(last[f"{p}_mean"] / NOMINAL[p] for p in PARAMS),
+                           tuple(last[f"{p}_std"] / NOMINAL[p] for p in PARAMS),
                            tuple(json.loads(meta.get("railgw.alerts", "[]")))))
     if not rows:
         raise InputError(f"expected replay results for estimator {version} in {store.root}, "

@@ -228,6 +228,7 @@ def discover(paths: Sequence[str | Path], vehicle: str | None,
     ``vehicle``/``bogie`` override them (and name loose files)."""
     out: list[tuple[Path, str, str]] = []
     for p in map(Path, paths):
+        found: list[tuple[Path, tuple[str, ...]]]
         if p.is_file():
             found = [(p, ())]
         elif p.is_dir():
