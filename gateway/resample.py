@@ -29,6 +29,18 @@
   run's first frame (``resyncs``) and the held frames are replayed. Either is decided
   within ``resync_hold_s`` of the node's samples; while a run is open (and younger than
   :data:`RUN_BLOCK_HOLDS` holds), ``pop_ready`` does not advance the grid.
+- **Horizons.** A receive time that is not finite or beyond :data:`MAX_RX_TIME_S` is
+  not used (``horizon["time_range"]``: float64 keeps microseconds only that far). A
+  receive time more than :data:`FAR_TIME_S` from a node's newest sample is not used to
+  unwrap its index (``horizon["far_time"]``): the index is unwrapped next to the newest
+  one, so the frame is an outlier and takes the glitch / step / restart path above
+  (a far clock step is re-based, never walked). A step of more than :data:`MAX_WALK_S`
+  that one node alone shows is not a restart: the run is settled as a glitch
+  (``horizon["far_step"]``). The grid never walks more than
+  :data:`MAX_WALK_S` of time in one go: beyond that it jumps to :data:`JUMP_KEEP_S`
+  before the receive time, the skipped stretch counted once (``horizon["grid_jump"]``,
+  ``grid_jump_points``), the filters restarted. Work and memory per frame are bounded
+  whatever its timestamp.
 - **Excluded messages** (:meth:`Resampler.set_excluded`, e.g. two senders on one id)
   are not waited for; their entries are MISSING with reason ``excluded``.
 - **Filtering.** Per-sensor Butterworth low-pass (:mod:`gateway.lowpass`, ``None`` = off)
@@ -73,7 +85,27 @@ NO_LOWPASS_HZ: dict[str, float | None] = dict.fromkeys(SENSORS_5)
 """No anti-alias filtering on any sensor."""
 COUNTERS = ("grid_points", "late_frames", "duplicate_frames", "reordered_frames",
             "outlier_frames", "resyncs", "ignored_frames", "speed_missing", "clock_steps",
-            "retimed_frames")
+            "retimed_frames", "grid_jump_points")
+HORIZON_REASONS: tuple[str, ...] = ("time_range", "far_time", "far_step", "grid_jump")
+"""Receive times beyond a horizon, by reason: ``time_range`` a frame's receive time not
+finite or beyond :data:`MAX_RX_TIME_S` (frame not used); ``far_time`` a frame's receive
+time more than :data:`FAR_TIME_S` from its node's newest sample (index unwrapped next to
+that sample instead); ``far_step`` a ripe outlier run of one node alone stepped by more
+than :data:`MAX_WALK_S` (one receive clock cannot step for one node: the run is
+settled as a glitch, its frames placed by index, instead of restarting the node's
+model at that time); ``grid_jump`` the grid jumped over more than :data:`MAX_WALK_S` of
+empty time (once per jump; the points skipped are in ``grid_jump_points``)."""
+MAX_RX_TIME_S = 1e10
+"""Largest believable |receive time|, s (year 2286 as a Unix time; float64 resolves
+about 2 us there)."""
+FAR_TIME_S = 3600.0
+"""A receive time further than this from a node's newest sample does not unwrap its
+index, s."""
+MAX_WALK_S = 60.0
+"""Most grid time finalised point by point in one advance, s; beyond, the grid jumps."""
+JUMP_KEEP_S = 1.0
+"""After a jump the grid restarts this long before the receive time (the rings hold
+less than that), s."""
 LATE_REASONS: tuple[str, ...] = ("deadline", "not_waited", "clock")
 """Why a frame came after the grid had passed its sample: ``deadline`` the receive time
 (newest frame or ``pop_ready``) had passed the sample by more than ``deadline_s``, so
@@ -175,6 +207,9 @@ class ResamplerState:
     late: dict[str, int] = field(default_factory=lambda: dict.fromkeys(LATE_REASONS, 0))
     gaps: dict[str, dict[str, int]] = field(default_factory=dict)
     """Per lateral message: grid points with its entries MISSING, by reason."""
+    horizon: dict[str, int] = field(
+        default_factory=lambda: dict.fromkeys(HORIZON_REASONS, 0))
+    """Receive times beyond a horizon, by reason (:data:`HORIZON_REASONS`)."""
     next_j: int | None = None
     """Index of the next grid point (t = j / fs_hz); None until the first lateral frame."""
     pending: list[GridSample] = field(default_factory=list)
@@ -209,6 +244,10 @@ class ResamplerStats:
     retimed_frames: int
     """Frames with a disbelieved receive time placed by their sample index."""
     excluded: tuple[str, ...]
+    horizon: dict[str, int]
+    """Receive times beyond a horizon, by reason (:data:`HORIZON_REASONS`)."""
+    grid_jump_points: int
+    """Grid points skipped by grid jumps (never emitted)."""
 
 
 @dataclass(frozen=True)
@@ -303,8 +342,11 @@ class Resampler:
     def _push(self, frame: DecodedFrame, suspect: bool, arrival: int | None = None) -> None:
         st = self._st
         stream = self._streams.get(frame.message)
-        if stream is None or frame.sample_idx is None or not math.isfinite(frame.timestamp_s):
+        if stream is None or frame.sample_idx is None:
             st.counters["ignored_frames"] += 1
+            return
+        if not abs(frame.timestamp_s) <= MAX_RX_TIME_S:      # NaN and inf too
+            st.horizon["time_range"] += 1
             return
         if arrival is None:
             arrival = st.arrivals
@@ -312,7 +354,11 @@ class Resampler:
         t_rx = frame.timestamp_s + st.rx_offset_s
         node = st.nodes[frame.message]
         clock = node.clock
-        k = unwrap(clock, frame.sample_idx, t_rx)
+        t_unwrap = t_rx
+        if clock.started and abs(t_rx - clock.time_s(clock.k_max)) > FAR_TIME_S:
+            st.horizon["far_time"] += 1             # an outlier, whatever its index says
+            t_unwrap = clock.time_s(clock.k_max)
+        k = unwrap(clock, frame.sample_idx, t_unwrap)
         mask = len(node.ring_k) - 1
         slot = k & mask
         if node.ring_k[slot] == k:
@@ -418,6 +464,10 @@ class Resampler:
                 held.extend(n.run)
                 n.run = []
                 close_run(n.clock)
+        elif abs(step_s) > MAX_WALK_S:     # one node's time far off: not believed
+            st.horizon["far_step"] += 1
+            self._settle_run(stream, node)
+            return
         else:
             held, node.run = node.run, []
             c.started = False
@@ -443,12 +493,13 @@ class Resampler:
                    for n in self._st.nodes.values())
 
     def pop_ready(self, now_s: float) -> list[GridSample]:
-        """The grid points final at receive time ``now_s`` (s), in order, each once."""
+        """The grid points final at receive time ``now_s`` (s), in order, each once (a
+        ``now_s`` beyond :data:`MAX_RX_TIME_S` does not advance the grid)."""
         if not math.isfinite(now_s):
             raise InputError(f"expected a finite now_s, got {now_s}")
         st = self._st
         now_s += st.rx_offset_s
-        if now_s > st.now_s and not self._run_open(now_s):
+        if abs(now_s) <= MAX_RX_TIME_S and now_s > st.now_s and not self._run_open(now_s):
             st.now_s = now_s
             if st.next_j is not None:
                 self._release_until(now_s - self.config.deadline_s)
@@ -467,6 +518,12 @@ class Resampler:
             self._release_until(max(ends, default=-math.inf))
         out, st.pending = st.pending, []
         return out
+
+    def grid_time_s(self) -> float:
+        """Time of the next grid point on the (re-based) receive clock, s; NaN before
+        the first lateral frame."""
+        j = self._st.next_j
+        return math.nan if j is None else j / self.config.fs_hz
 
     def sample_time_s(self, message: str, k: int) -> float:
         """Current model time (receive clock, s) of unwrapped sample ``k`` of ``message``."""
@@ -488,7 +545,8 @@ class Resampler:
             c["outlier_frames"], c["resyncs"], c["ignored_frames"],
             {m: n.clock.drift_ppm for m, n in st.nodes.items()}, dict(st.late),
             {m: dict(g) for m, g in st.gaps.items()}, c["clock_steps"], st.rx_offset_s,
-            c["retimed_frames"], tuple(m for m, n in st.nodes.items() if n.excluded))
+            c["retimed_frames"], tuple(m for m, n in st.nodes.items() if n.excluded),
+            dict(st.horizon), c["grid_jump_points"])
 
     # ------------------------------------------------------------------ grid
     def _release_ready(self) -> None:
@@ -509,9 +567,17 @@ class Resampler:
     def _release_until(self, t_max_s: float) -> None:
         """Finalise every grid point at or before ``t_max_s`` (deadline passed)."""
         st = self._st
-        if st.next_j is None or st.next_j / self.config.fs_hz > t_max_s:
+        fs = self.config.fs_hz
+        if st.next_j is None or st.next_j / fs > t_max_s:
             return
-        while st.next_j / self.config.fs_hz <= t_max_s:
+        if t_max_s - st.next_j / fs > MAX_WALK_S:       # empty time: jump, count it once
+            j = math.ceil((t_max_s - JUMP_KEEP_S) * fs)
+            st.horizon["grid_jump"] += 1
+            st.counters["grid_jump_points"] += j - st.next_j
+            st.next_j = j
+            st.filters = [LowpassState() for _ in SENSORS_5]
+            st.yaw_filter = LowpassState()
+        while st.next_j / fs <= t_max_s:
             self._finalize(st.next_j)
         t_last = (st.next_j - 1) / self.config.fs_hz
         for stream in self._lateral:       # stop waiting for samples the grid has passed

@@ -240,8 +240,9 @@ class Service:
         late = gaps = resyncs = 0
         two_senders = False
         if p is not None:               # the front end's counters, every reason summed
-            fe = p.front.stats()
-            late, resyncs, two_senders = fe.late_total, fe.resyncs, bool(fe.two_senders)
+            fe = p.front.stats()        # a receive-clock step re-based counts as a resync
+            late, two_senders = fe.late_total, bool(fe.two_senders)
+            resyncs = fe.resyncs + fe.clock_steps
             gaps = fe.gap_points
         priority_error = p.worker.stats.priority_error if p is not None else None
         return HealthFlags(

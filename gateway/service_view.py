@@ -33,11 +33,29 @@ from gateway.model import PARAM_NAMES
 from gateway.records import Alert, Severity
 
 if TYPE_CHECKING:
+    from gateway.pipeline import FrontEndStats
     from gateway.service import Service
 
 log = logging.getLogger(__name__)
 WRITE_TIMEOUT_S = 5.0
 T = TypeVar("T")
+
+
+def front_end_view(fe: FrontEndStats | None) -> dict[str, Any]:
+    """The ``status`` reply's ``front_end``: late frames and gap points by reason (gaps
+    summed over the lateral messages), resyncs, clock steps, receive times beyond a
+    horizon by reason, and the messages with two senders now (plus raise counts)."""
+    if fe is None:
+        return {"late": {}, "gaps": {}, "resyncs": 0, "clock_steps": 0, "horizon": {},
+                "two_senders": [], "two_sender_events": 0}
+    gaps: dict[str, int] = {}
+    for by_reason in fe.gaps.values():
+        for why, n in by_reason.items():
+            gaps[why] = gaps.get(why, 0) + n
+    return {"late": dict(fe.late), "gaps": gaps, "resyncs": fe.resyncs,
+            "clock_steps": fe.clock_steps, "horizon": dict(fe.horizon),
+            "two_senders": list(fe.two_senders),
+            "two_sender_events": sum(fe.two_sender_events.values())}
 
 
 class LogTail(logging.Handler):
@@ -87,7 +105,8 @@ class ServiceViewImpl:
                                   "pid": p.worker.pid if p else None,
                                   "rtf": p.rtf if p else None},
                        "bus": {"state": src.bus_state.name, "open": src.bus_open},
-                       "active_alerts": len(s.policy.active)},
+                       "active_alerts": len(s.policy.active),
+                       "front_end": front_end_view(p.front.stats() if p else None)},
             "estimates": estimates_view(
                 est, thresholds={n: {"low": pp.low_rel, "high": pp.high_rel}
                                  for n, pp in pol.items()},

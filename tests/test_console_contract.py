@@ -42,7 +42,9 @@ SENSOR_KEYS = {"rate_hz", "expected_hz", "accepted", "rejected", "lost_frames", 
 BUS_KEYS = {"interface", "channel", "state", "open", "load_pct", "error_frames",
             "frames_rx", "frames_tx", "reopens", "dropped", "last_error"}
 STATUS_KEYS = {"state", "uptime_s", "version", "data_time_s", "worker", "bus",
-               "active_alerts", "console"}
+               "active_alerts", "console", "front_end"}
+FRONT_END_KEYS = {"late", "gaps", "resyncs", "clock_steps", "horizon", "two_senders",
+                  "two_sender_events"}
 ROW_KEYS = {"t_s", "time", "estimates", "event"}
 
 
@@ -144,6 +146,8 @@ def test_read_commands_have_one_shape(term: PtyTerminal):
             ("status", "estimates", "alerts", "history 1", "sensors", "bus", "version")}
     assert re.match(r"state +(Running|Degraded|Fault|Starting)", text["status"])
     assert re.search(r"^console +not logged in$", text["status"], re.M)
+    assert re.search(r"^front end +late \d+.*, gaps \d+", text["status"], re.M)
+    assert re.search(r"^ +resyncs \d+, clock steps \d+, two senders", text["status"], re.M)
     assert text["estimates"].startswith("estimates at data time ")
     for label in ("Csy lateral damper", "Csay anti-yaw damper", "lambda wheelset"):
         assert label in text["estimates"]
@@ -156,6 +160,7 @@ def test_read_commands_have_one_shape(term: PtyTerminal):
     _json_mode(term)
     status = _json(term, "status")["data"]
     assert set(status) >= STATUS_KEYS
+    assert set(status["front_end"]) == FRONT_END_KEYS
     est = _json(term, "estimates")["data"]
     assert {"t_s", "ess", "particles", "updated", "parameters"} <= set(est)
     assert set(est["parameters"]) == set(PARAMS)

@@ -251,7 +251,8 @@ def candump_documents(draw: st.DrawFn) -> str:
                                st.sampled_from([math.nan, math.inf, -math.inf])))
             lines.insert(at, f"({t:f}) vcan0 {draw(st.sampled_from(FRAME_IDS))}#{data}")
         elif kind == 1 and lines:                      # timestamp step / glitch
-            shift = draw(st.sampled_from([-0.5, -100.0, 0.5, 10.0, 100.0]))
+            shift = draw(st.sampled_from([-0.5, -100.0, 0.5, 10.0, 100.0, 500.0, -5e3,
+                                          1e9, -1e9, 1e300, -1e300]))
             for k in range(at, min(len(lines), at + draw(st.integers(1, 50)))):
                 head, _, tail = lines[k].partition(")")
                 with suppress(ValueError):

@@ -80,9 +80,36 @@ def status(d: Mapping[str, Any], session_line: str) -> str:
              f"real-time factor {num(worker.get('rtf'), '.2f')}",
              f"CAN bus    {_word(_get(d, 'bus', 'state'))}"
              f"{'' if _get(d, 'bus', 'open') is not False else ' (closed)'}",
-             f"alerts     {_word(d.get('active_alerts'))} active",
-             f"console    {session_line}"]
+             f"alerts     {_word(d.get('active_alerts'))} active"]
+    fe = d.get("front_end")
+    if isinstance(fe, Mapping):
+        lines.append(f"front end  {front_end(fe)}")
+    lines.append(f"console    {session_line}")
     return "\n".join(lines)
+
+
+def _by_reason(counts: Any) -> str:
+    """``12 (deadline 10, clock 2)``: the total and its non-zero reasons."""
+    if not isinstance(counts, Mapping):
+        return DASH
+    nz = [(k, v) for k, v in counts.items() if isinstance(v, int) and v]
+    total = sum(v for _, v in nz)
+    return f"{total} ({', '.join(f'{k} {v}' for k, v in nz)})" if nz else "0"
+
+
+def front_end(fe: Mapping[str, Any]) -> str:
+    """Two lines: late frames and gap points by reason; resyncs, clock steps, receive
+    times beyond a horizon (if any) and two senders (now, or past episodes)."""
+    senders = fe.get("two_senders") or []
+    rest = f"resyncs {_word(fe.get('resyncs'))}, clock steps {_word(fe.get('clock_steps'))}"
+    horizon = _by_reason(fe.get("horizon"))
+    if horizon not in ("0", DASH):
+        rest += f", beyond horizon {horizon}"
+    episodes = _word(fe.get("two_sender_events", 0))
+    rest += (f", TWO SENDERS on {', '.join(map(_word, senders))}" if senders
+             else f", two senders: none now ({episodes} episodes)")
+    return (f"late {_by_reason(fe.get('late'))}, gaps {_by_reason(fe.get('gaps'))}\n"
+            f"           {rest}")
 
 
 def _limits(th: Any, scale_pct: bool = True) -> str:

@@ -33,7 +33,9 @@ from gateway.console.view import (
 )
 from gateway.errors import InputError
 from gateway.model import PARAM_NAMES
+from gateway.pipeline import FrontEndStats
 from gateway.records import Alert, AlertState, Estimate, Severity
+from gateway.service_view import front_end_view
 
 
 class ExampleView:
@@ -190,7 +192,8 @@ class ExampleView:
         status = {"state": "Degraded", "uptime_s": 48 * 3600.0 + 312.0, "version": __version__,
                   "data_time_s": t_now, "reason": "BDN_Lat timed out",
                   "worker": {"alive": True, "restarts": 0, "pid": 4242, "rtf": 3.1},
-                  "bus": {"state": "ERROR_ACTIVE", "open": True}}
+                  "bus": {"state": "ERROR_ACTIVE", "open": True},
+                  "front_end": front_end_view(_front_end())}
         return cls(estimate=est, history_alerts=recent, history=history,
                    sensors=sensors, bus=bus, config_text=as_toml(cfg), log=log, status=status,
                    particles=cfg.estimator.particles)
@@ -203,3 +206,18 @@ def _sensor(rate_hz: float, expected_hz: float, accepted: int, rejected: dict[st
             "rejected": rejected, "lost_frames": lost, "timeouts": timeouts,
             "timed_out": timed_out, "last_values": last_values}
 
+
+def _front_end() -> FrontEndStats:
+    """The example's front end: BDN silent for 96 frames and timed out twice, one receive
+    clock step (NTP), one BGN node restart, a second BGN sender seen once (gone)."""
+    none = {"lost": 0, "late": 0, "outlier": 0, "not_seen": 0, "excluded": 0}
+    return FrontEndStats(
+        frames=518_336_546, accepted=518_336_502, rejected={"crc": 3, "counter_repeated": 41},
+        grid_points=172_800_000, late={"deadline": 14, "not_waited": 0, "clock": 2},
+        gaps={"WSN_Lat": {**none, "lost": 12}, "BGN_Lat": {**none, "excluded": 1200},
+              "BDN_Lat": {**none, "lost": 96, "late": 14}},
+        gating={"updated": 171_000_000}, clock_steps=1, rx_offset_s=-0.5, resyncs=1,
+        retimed_frames=10, outlier_frames=0, duplicate_frames=0,
+        sample_idx_jumps={"BGN_Lat": {"idx_jump": 1}}, two_senders=(),
+        two_sender_events={"WSN_Lat": 0, "BGN_Lat": 1, "BDN_Lat": 0, "VEH_Speed": 0},
+        horizon={"time_range": 0, "far_time": 0, "far_step": 0, "grid_jump": 0})
