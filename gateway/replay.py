@@ -49,7 +49,8 @@ def alert_json(alert: Alert) -> dict[str, Any]:
     return {"type": "alert", "t_s": round(alert.t_s, 6), "seq": alert.seq,
             "parameter": alert.parameter, "severity": alert.severity.name.lower(),
             "state": alert.state.name.lower(), "code": alert.code,
-            "value_rel": float(f"{alert.value_rel:.6g}"), "message": alert.message}
+            "value_rel": float(f"{alert.value_rel:.6g}") if math.isfinite(alert.value_rel)
+            else None, "message": alert.message}
 
 
 def read_log(path: str | Path) -> Iterator[can.Message]:

@@ -83,12 +83,16 @@ def test_replay_jsonl_has_the_two_senders_alert(tmp_path: Path) -> None:
     cfg = with_overrides(Config(), {"estimator.particles": 32})
     out = io.StringIO()
     result = replay(log, cfg, jsonl=out)
-    lines = [json.loads(x) for x in out.getvalue().splitlines()]
+    def strict(token: str) -> None:      # NaN/Infinity are not JSON: depot tools reject them
+        raise AssertionError(f"non-JSON number {token} in the replay JSONL")
+
+    lines = [json.loads(x, parse_constant=strict) for x in out.getvalue().splitlines()]
     alerts = [x for x in lines if x["type"] == "alert"]
     ours = [a for a in alerts if a["code"] == CODE_TWO_SENDERS]
     assert [(a["state"], a["parameter"], a["severity"]) for a in ours] == [
         ("raised", "node:BGN", "advisory"), ("cleared", "node:BGN", "advisory")], alerts
     assert ours[0]["message"].startswith("two senders on BGN")
+    assert ours[0]["value_rel"] is None            # a node alert has no parameter value
     assert 2.0 <= ours[0]["t_s"] < 4.0 < ours[1]["t_s"] <= 8.0
     assert [a.seq for a in result.alerts] == sorted({a.seq for a in result.alerts})
     assert all(a["code"] != CODE_TWO_SENDERS or a["parameter"].startswith("node:")
