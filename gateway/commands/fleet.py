@@ -112,10 +112,13 @@ def run_ingest(args: argparse.Namespace) -> int:
 
 
 def _replay(store: Any, cfg: Config, args: argparse.Namespace) -> Any:
+    import distributed  # noqa: F401 - sets its loggers' levels; quieten them after
+
     from gateway.fleet.replay import dask_client, replay_store
 
-    for name in ("distributed", "tornado"):      # the cluster's INFO chatter
-        logging.getLogger(name).setLevel(logging.WARNING)
+    for name in list(logging.root.manager.loggerDict):   # the cluster's INFO chatter
+        if name.split(".")[0] in ("distributed", "tornado"):
+            logging.getLogger(name).setLevel(logging.WARNING)
     try:
         with dask_client(args.scheduler, args.workers) as client:
             rep = replay_store(store, cfg, client, progress=not args.no_progress,
@@ -169,6 +172,7 @@ def run_demo(args: argparse.Namespace) -> int:
     """Simulate with the installed simulator in a subprocess (the product never imports
     it), then ingest, replay on the embedded LocalCluster and report."""
     out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
     sim = out / "sim"
     cmd = [sys.executable, "-m", "firmware_sim", "fleet", "--out", str(sim),
            "--vehicles", str(args.vehicles), "--days", str(args.days),
