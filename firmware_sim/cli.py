@@ -15,7 +15,7 @@ from firmware_sim.output import send_live, write_log
 from firmware_sim.playback import playback_frames
 from firmware_sim.scenarios import SCENARIOS, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.canbus import DEFAULT_DEMO_BUS, open_bus, open_node_bus, parse_bus_spec
+from gateway.can.bus import DEFAULT_DEMO_BUS, open_bus, open_node_bus, parse_bus_spec
 from gateway.cli import (
     SEED,
     OneLineParser,
@@ -28,7 +28,7 @@ from gateway.cli import (
     writing,
 )
 from gateway.errors import FrameError, InputError
-from gateway.interchange import read_csv
+from gateway.offline.interchange import read_csv
 
 
 def _add_target(p: argparse.ArgumentParser) -> None:
@@ -150,7 +150,7 @@ def cmd_play_csv(args: argparse.Namespace) -> int:
 
 def cmd_stream(args: argparse.Namespace) -> int:
     """Sender thread on the bus; this thread receives, decodes and prints twice a second."""
-    from gateway.codec import default_codec
+    from gateway.can.codec import default_codec
 
     codec = default_codec()
     sim = _simulation(args)

@@ -30,9 +30,9 @@ import numpy as np
 from firmware_sim.output import write_log
 from firmware_sim.scenarios import NOM, Scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.alerts import default_params
+from gateway.alerts.policy import default_params
 from gateway.errors import InputError
-from gateway.model import PARAM_NAMES
+from gateway.model.vehicle import PARAM_NAMES
 
 DAY_S = 86_400.0
 SPEEDS_MPS = (25.0, 32.0, 38.0, 42.5, 50.0)

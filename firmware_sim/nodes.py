@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import cantools
 import numpy as np
 
-from gateway.e2e import COUNTER_MODULUS, e2e_crc
+from gateway.can.e2e import COUNTER_MODULUS, e2e_crc
 
 SAMPLE_INDEX_MODULUS = 1 << 16
 FRAME_TIME_S = 135e-6

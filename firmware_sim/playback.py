@@ -25,9 +25,9 @@ from firmware_sim.nodes import (
     counters_from,
     default_latency,
 )
-from gateway.codec import default_codec
+from gateway.can.codec import default_codec
 from gateway.errors import InputError
-from gateway.interchange import Recording
+from gateway.offline.interchange import Recording
 
 
 def _na_raw(packer: FramePacker, signal: str) -> int:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gateway.errors import InputError
-from gateway.model import THETA_NOMINAL, THETA_SEC42
+from gateway.model.vehicle import THETA_NOMINAL, THETA_SEC42
 
 FAULT_KINDS = ("stuck", "dropout", "noise_burst", "frozen_counter", "bad_crc", "out_of_order")
 """What a fault does to a node's frames inside its window:

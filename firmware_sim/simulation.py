@@ -26,8 +26,8 @@ from firmware_sim.nodes import (
 )
 from firmware_sim.scenarios import Fault, Scenario
 from firmware_sim.truth import NonlinearDampers, simulate
-from gateway.codec import default_codec
-from gateway.model import AR_PAPER_DEFAULT, SENSOR_NOISE_VAR, SENSORS_5, VehicleParams
+from gateway.can.codec import default_codec
+from gateway.model.vehicle import AR_PAPER_DEFAULT, SENSOR_NOISE_VAR, SENSORS_5, VehicleParams
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.linalg
 
 from gateway.errors import InputError
-from gateway.model import (
+from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
     IDX,
     NX,

@@ -29,12 +29,12 @@ from gateway.errors import GatewayError, InputError
 COMMANDS: tuple[str, ...] = (
     "gateway.commands.model",
     "gateway.commands.estimate",
-    "gateway.commands.bench",
+    "firmware_sim.commands.bench",
     "gateway.commands.identify",
     "gateway.commands.console",
     "gateway.commands.run",
     "gateway.commands.replay",
-    "gateway.commands.demo",
+    "firmware_sim.commands.demo",
     "gateway.commands.fleet",
 )
 

@@ -229,7 +229,7 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     ("state", "directory"): Text(1, 4096, what="a directory path"),
     ("serial", "device"): Text(0, 4096, what="a device path"),
     ("serial", "baudrate"): Range(50, 4_000_000),
-    # '' or scrypt$N$r$p$salt$hash (gateway.console.pin checks the fields, below)
+    # '' or scrypt$N$r$p$salt$hash (gateway.pin checks the fields, below)
     ("serial", "pin_hash"): Text(0, 256, what="a PIN hash"),
 }
 """The checked domain of every key (a test asserts that every key has one)."""
@@ -384,7 +384,7 @@ def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
                                       f"got {type(value).__name__} {_describe(value)}")
             problem = check_value(name, key, value)
             if not problem and (name, key) == ("serial", "pin_hash"):
-                from gateway.console.pin import pin_hash_problem  # the format has one home
+                from gateway.pin import pin_hash_problem  # the format has one home
                 problem = pin_hash_problem(value)
             if problem:
                 raise fail(name, key, problem)

@@ -16,7 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
-from gateway.model import PARAM_NAMES
+from gateway.model.vehicle import PARAM_NAMES
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class Sample:
 class Estimate:
     """Posterior summary at data time ``t_s``.
 
-    ``mean`` and ``std`` are in :data:`gateway.model.PARAM_NAMES` order (N s/m, N s/m, -),
+    ``mean`` and ``std`` are in :data:`gateway.model.vehicle.PARAM_NAMES` order (N s/m, N s/m, -),
     plus Ar (paper units) as a 4th entry when it is estimated jointly.
     ``ess`` is the effective sample size; ``v_sy_mps``/``v_say_mps`` are the damper
     operating velocities from the state estimates (paper Figs. 9-10).

@@ -1,4 +1,4 @@
-"""Tests of gateway.alerts: thresholds, gate, hold times, hysteresis, lifecycle, checkpoint."""
+"""Tests of gateway.alerts.policy: thresholds, gate, hold times, hysteresis, lifecycle, checkpoint."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from gateway.alerts import (
+from gateway.alerts.policy import (
     AlertPolicy,
     ParamPolicy,
     PolicyConfig,
@@ -18,7 +18,7 @@ from gateway.alerts import (
     default_params,
 )
 from gateway.errors import ConfigError, InputError, StateError
-from gateway.model import PARAM_NAMES, THETA_NOMINAL
+from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
 from gateway.records import AlertState, Estimate, Severity
 
 NOM = THETA_NOMINAL.as_array()

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from firmware_sim.truth import add_sensor_noise, select, simulate
-from gateway.model import SENSORS_3, THETA_NOMINAL
-from gateway.rbpf import RBPF, RBPFConfig
+from gateway.estimator.rbpf import RBPF, RBPFConfig
+from gateway.model.vehicle import SENSORS_3, THETA_NOMINAL
 from gateway.records import Sample
 
 FS = 1000.0

@@ -2,7 +2,7 @@
 
 The parametrised ``term`` fixture gives a real pty talking to a console that serves
 either the example view (tests/fakes/example_view.py, on the real AlertPolicy) or the
-live service view: a real :class:`gateway.service.Service` on a python-can ``virtual``
+live service view: a real :class:`gateway.service.daemon.Service` on a python-can ``virtual``
 bus, fed 16 s of the simulator's ``paper`` scenario (Csy at half nominal raises alerts),
 with its worker process, alert policy and state directory. Every check below runs
 unchanged against both, so the two views cannot drift apart again; the text replies
@@ -26,11 +26,11 @@ from fakes.ptyterm import PtyTerminal, console_on_pty
 from firmware_sim.output import send_live
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.canbus import open_node_bus
+from gateway.can.bus import open_node_bus
 from gateway.config import Config, with_overrides
-from gateway.console.pin import hash_pin
 from gateway.console.view import PARAMS
-from gateway.service import Service
+from gateway.pin import hash_pin
+from gateway.service.daemon import Service
 
 PIN = "482913"
 PIN_HASH = hash_pin(PIN, n=2 ** 10)

@@ -10,10 +10,10 @@ from fakes.example_view import ExampleView
 
 from gateway.console.commands import COMMANDS
 from gateway.console.engine import PROMPT, PROMPT_LOGGED_IN, PROMPT_PIN, Console
-from gateway.console.pin import hash_pin
 from gateway.console.reply import Reply, encode_json, encode_text
 from gateway.console.session import ConsoleLimits
 from gateway.errors import InputError
+from gateway.pin import hash_pin
 
 PIN = "2468"
 

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 
 from gateway.console.engine import Console
 from gateway.console.lines import Cancelled, Event, Line, LineDiscipline, TooLong
-from gateway.console.pin import hash_pin
 from gateway.console.session import ConsoleLimits
+from gateway.pin import hash_pin
 
 
 class Clock:

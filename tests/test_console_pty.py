@@ -19,9 +19,9 @@ from fakes.ptyterm import PtyTerminal, console_on_pty
 from gateway.cli import build_parser
 from gateway.commands.console import ConsoleClient
 from gateway.console.commands import COMMANDS
-from gateway.console.pin import hash_pin
 from gateway.console.port import ConsolePort
 from gateway.console.session import ConsoleLimits
+from gateway.pin import hash_pin
 
 PIN = "2468"
 

@@ -1,7 +1,7 @@
 """Console security, fail closed: salted PIN, persisted lockout, no PIN echo, escapes, audit.
 
 Each test failed before its fix (issue 11 item 5, issue 12 finding 5). The lockout and
-audit tests use a real :class:`gateway.service.Service` (its StateStore and view) on a
+audit tests use a real :class:`gateway.service.daemon.Service` (its StateStore and view) on a
 state directory; the audit failure is a full disk at ``os.fsync`` (ENOSPC), so the
 store's own failure path runs.
 """
@@ -25,10 +25,10 @@ from fakes.example_view import ExampleView
 from gateway.config import Config, load_config, with_overrides
 from gateway.console.engine import Console
 from gateway.console.lines import Line, LineDiscipline
-from gateway.console.pin import hash_pin, parse_pin_hash, verify_pin
 from gateway.console.session import ConsoleLimits
 from gateway.errors import ConfigError
-from gateway.service import Service
+from gateway.pin import hash_pin, parse_pin_hash, verify_pin
+from gateway.service.daemon import Service
 
 PIN = "482913"
 PIN_HASH = hash_pin(PIN, n=2 ** 10)

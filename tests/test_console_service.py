@@ -13,10 +13,10 @@ from fakes.ptyterm import PtyTerminal
 from firmware_sim.output import send_live
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.canbus import open_node_bus
+from gateway.can.bus import open_node_bus
 from gateway.config import Config, with_overrides
-from gateway.console.pin import hash_pin
-from gateway.service import Service
+from gateway.pin import hash_pin
+from gateway.service.daemon import Service
 
 PIN = "482913"
 

@@ -1,4 +1,4 @@
-"""Tests of dbc/railgw.dbc, gateway.codec and gateway.busload against real cantools."""
+"""Tests of dbc/railgw.dbc, gateway.can.codec and gateway.can.busload against real cantools."""
 
 from __future__ import annotations
 
@@ -12,18 +12,11 @@ import cantools
 import pytest
 
 from dbc import DBC_PATH
-from gateway.busload import CyclicFrame, bus_load, frame_bits_worst_case
-from gateway.codec import (
-    REASONS,
-    SENSOR_SIGNALS,
-    Codec,
-    MessageSpec,
-    SignalSpec,
-    default_codec,
-)
-from gateway.e2e import e2e_crc, protect
+from gateway.can.busload import CyclicFrame, bus_load, frame_bits_worst_case
+from gateway.can.codec import REASONS, SENSOR_SIGNALS, Codec, MessageSpec, SignalSpec, default_codec
+from gateway.can.e2e import e2e_crc, protect
 from gateway.errors import DbcError, FrameError
-from gateway.model import SENSOR_NOISE_VAR, SENSOR_UNITS, SENSORS_5
+from gateway.model.vehicle import SENSOR_NOISE_VAR, SENSOR_UNITS, SENSORS_5
 
 CYCLES_MS = {"WSN_Lat": 1, "BGN_Lat": 1, "BDN_Lat": 1, "VEH_Speed": 10, "GW_EstCsy": 100,
              "GW_EstCsay": 100, "GW_EstConicity": 100, "GW_Alert": None, "GW_Health": 1000,
@@ -303,7 +296,7 @@ def test_decode_throughput_well_above_8000_frames_per_s(codec: Codec) -> None:
 
 
 def test_health_flags_frame_carries_every_flag_and_counter(codec: Codec) -> None:
-    from gateway.sinks import CanSink, Health, HealthFlags
+    from gateway.sinks.outputs import CanSink, Health, HealthFlags
 
     sent: list[can.Message] = []
     sink = CanSink(codec, lambda m: sent.append(m) or True, 500)

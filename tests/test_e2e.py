@@ -1,4 +1,4 @@
-"""Tests of gateway.e2e: CRC-8 SAE J1850 known answers, E2E CRC, protect, counter check."""
+"""Tests of gateway.can.e2e: CRC-8 SAE J1850 known answers, E2E CRC, protect, counter check."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from gateway.e2e import (
+from gateway.can.e2e import (
     CRC8_CHECK,
     CounterCheck,
     CounterResult,

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gateway.accuracy import make_data
+from firmware_sim.studies.accuracy import make_data
 from gateway.cli import main
-from gateway.interchange import read_csv, write_csv
-from gateway.model import THETA_SEC42
-from gateway.offline import to_grid
+from gateway.model.vehicle import THETA_SEC42
+from gateway.offline.grid import to_grid
+from gateway.offline.interchange import read_csv, write_csv
 
 
 @pytest.fixture(scope="module")

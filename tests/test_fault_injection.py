@@ -5,10 +5,10 @@ Every row of :data:`FAULTS` names a fault, how it is injected, the threat it map
 that value. Three runners take the rows that apply to them:
 
 - ``replay``: a short nominal simulator log (made once per module and per simulator
-  setting), the fault injected into its frames, then :func:`gateway.replay.replay`
+  setting), the fault injected into its frames, then :func:`gateway.offline.replay.replay`
   (real worker process); the predicate is checked on the report's ``FrontEndStats``,
   and the front end must not go blind (measurement updates go on);
-- ``live``: a real :class:`gateway.service.Service` on a python-can ``virtual`` bus, the
+- ``live``: a real :class:`gateway.service.daemon.Service` on a python-can ``virtual`` bus, the
   same faulty frames sent by the test in real time (receive stamps as the sender gives
   them, as a kernel would), the same predicate on the service's front end and the
   health flag read back off the bus (GW_HealthFlags 0x321);
@@ -44,13 +44,13 @@ from test_service import Running, _demo, _wait
 from firmware_sim.output import send_live, write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import default_codec
+from gateway.can.codec import default_codec
+from gateway.can.e2e import e2e_crc
 from gateway.config import Config, with_overrides
-from gateway.e2e import e2e_crc
-from gateway.pipeline import FrontEndStats
-from gateway.replay import replay
-from gateway.state import ALERTS, POLICY, StateStore
-from gateway.store import files
+from gateway.frontend.stats import FrontEndStats
+from gateway.offline.replay import replay
+from gateway.sinks.state import ALERTS, POLICY, StateStore
+from gateway.sinks.store import files
 
 DURATION_S = 6.0
 """Length of the simulated traffic, s."""
@@ -287,7 +287,7 @@ class OffsetBus:
 
 
 def _play(run: Running, frames: Frames) -> None:
-    from gateway.canbus import open_node_bus
+    from gateway.can.bus import open_node_bus
     with open_node_bus(f"virtual:{run.channel}") as tx:
         send_live([m for _, m in frames], OffsetBus(tx, [off for off, _ in frames]))  # type: ignore[arg-type]
 

@@ -24,12 +24,12 @@ import pytest
 from firmware_sim.output import write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import default_codec
+from gateway.can.codec import default_codec
 from gateway.config import Config, with_overrides
-from gateway.pipeline import FrontEnd
-from gateway.resample import FAR_TIME_S, MAX_WALK_S
-from gateway.service import Service
-from gateway.sinks import CanSink, Health
+from gateway.frontend.chain import FrontEnd
+from gateway.frontend.resample import FAR_TIME_S, MAX_WALK_S
+from gateway.service.daemon import Service
+from gateway.sinks.outputs import CanSink, Health
 
 DURATION_S = 3.0
 GRID_HZ = 1000.0

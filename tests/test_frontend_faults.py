@@ -20,9 +20,9 @@ import pytest
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import default_codec
+from gateway.can.codec import default_codec
 from gateway.config import Config
-from gateway.pipeline import FrontEnd
+from gateway.frontend.chain import FrontEnd
 from gateway.records import Sample
 
 FAULT_S = 4.0

@@ -12,10 +12,10 @@ import pytest
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import default_codec
+from gateway.can.codec import default_codec
+from gateway.can.e2e import COUNTER_MODULUS, SenderCheck, SenderParams
 from gateway.config import Config
-from gateway.e2e import COUNTER_MODULUS, SenderCheck, SenderParams
-from gateway.pipeline import FrontEnd
+from gateway.frontend.chain import FrontEnd
 
 P = SenderParams()
 

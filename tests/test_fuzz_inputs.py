@@ -27,8 +27,8 @@ from gateway.config import DOMAINS, load_config
 from gateway.console.engine import Console
 from gateway.console.session import ConsoleLimits
 from gateway.errors import GatewayError
-from gateway.interchange import OPTIONAL, REQUIRED, read_csv
-from gateway.offline import to_grid
+from gateway.offline.grid import to_grid
+from gateway.offline.interchange import OPTIONAL, REQUIRED, read_csv
 
 COUNTS: dict[str, int] = {"toml": 0, "csv": 0, "candump": 0, "console": 0}
 TRACEBACKS: list[str] = []
@@ -298,7 +298,7 @@ PIN = "2468"
 
 @pytest.fixture(scope="module")
 def console() -> Console:
-    from gateway.console.pin import hash_pin
+    from gateway.pin import hash_pin
 
     clock = iter(range(10**9))
     c = Console(ExampleView.example(), pin_hash=hash_pin(PIN),

@@ -12,11 +12,11 @@ import pytest
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import DecodedFrame, default_codec
+from gateway.can.codec import DecodedFrame, default_codec
 from gateway.errors import ConfigError, StateError
-from gateway.gating import REASONS, Gate, GateConfig
+from gateway.frontend.gating import REASONS, Gate, GateConfig
+from gateway.frontend.resample import NO_LOWPASS_HZ, Resampler, ResamplerConfig
 from gateway.records import GridSample, Quality, Sample
-from gateway.resample import NO_LOWPASS_HZ, Resampler, ResamplerConfig
 
 V_PAPER = 42.5
 CONFIG = GateConfig(sensors=3, default_speed_mps=V_PAPER)

@@ -17,8 +17,8 @@ from firmware_sim.output import write_log
 from firmware_sim.scenarios import V_PAPER, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from gateway.identify.canlog import read_can_log
-from gateway.interchange import write_csv
-from gateway.model import SENSOR_NOISE_VAR, SENSORS_3, SENSORS_5
+from gateway.model.vehicle import SENSOR_NOISE_VAR, SENSORS_3, SENSORS_5
+from gateway.offline.interchange import write_csv
 
 FS_HZ = 1000.0
 

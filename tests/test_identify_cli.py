@@ -7,7 +7,7 @@ import pytest
 
 from gateway.cli import main
 from gateway.identify.track import random_track, write_track_csv
-from gateway.interchange import write_csv
+from gateway.offline.interchange import write_csv
 
 
 def _run(argv, capsys):
@@ -120,7 +120,7 @@ def test_track_helper_round_trip(tmp_path):
 
 def test_no_track_uses_the_prediction_error_path(tmp_path, capsys):
     from firmware_sim.truth import add_sensor_noise, select, simulate
-    from gateway.model import SENSORS_3, THETA_SEC42
+    from gateway.model.vehicle import SENSORS_3, THETA_SEC42
 
     n, fs = 6000, 200.0
     rng = np.random.default_rng(8)

@@ -6,7 +6,7 @@ import scipy.linalg
 from gateway.identify.linalg import dare_filter, expm
 from gateway.identify.params import ParamPoint
 from gateway.identify.prediction_error import reduced_model, van_loan
-from gateway.model import SENSORS_5, discretize, measurement_noise, track_intensity
+from gateway.model.vehicle import SENSORS_5, discretize, measurement_noise, track_intensity
 
 
 def test_expm_matches_scipy_on_the_stiff_vehicle_matrix():

@@ -11,7 +11,7 @@ import pytest
 from firmware_sim.truth import add_sensor_noise, select, simulate
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
-from gateway.model import SENSORS_3, SENSORS_5, THETA_SEC42
+from gateway.model.vehicle import SENSORS_3, SENSORS_5, THETA_SEC42
 
 TRUTH = THETA_SEC42.as_array()
 
@@ -47,8 +47,8 @@ def test_recovers_csy_csay_lambda_three_sensors():
 @pytest.mark.slow
 def test_consistent_with_the_rbpf_on_the_same_data():
     """Same 5 s at 1 kHz, 5 sensors, as the RBPF's own acceptance test (seed 0)."""
-    rbpf = pytest.importorskip("gateway.rbpf")
-    accuracy = pytest.importorskip("gateway.accuracy")
+    rbpf = pytest.importorskip("gateway.estimator.rbpf")
+    accuracy = pytest.importorskip("firmware_sim.studies.accuracy")
     Y = accuracy.make_data(np.repeat(TRUTH[None], 5000, 0), 5, seed=0)
     est, _, _ = accuracy.run_filter(Y, rbpf.RBPFConfig(fs_hz=accuracy.FS_HZ, sensors=5, seed=0))
     pf_mean, pf_std = np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gateway.errors import CsvFormatError
-from gateway.interchange import read_csv, write_csv
+from gateway.offline.interchange import read_csv, write_csv
 
 HEADER = "time_s,bogie_lat_acc_mps2,bogie_yaw_rate_radps,body_lat_acc_mps2"
 

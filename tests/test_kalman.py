@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from firmware_sim.truth import add_sensor_noise, select, simulate
-from gateway.batch_expm import DiscreteBatch
-from gateway.coords import NZ, TRANSLATION, FilterCoords
-from gateway.kalman import from_lanes, n_chunks, to_lanes
-from gateway.lanecode import LANES
-from gateway.model import (
+from gateway.estimator.batch_expm import DiscreteBatch
+from gateway.estimator.kalman import from_lanes, n_chunks, to_lanes
+from gateway.estimator.lanecode import LANES
+from gateway.estimator.rbpf import RBPF, RBPFConfig
+from gateway.model.coordinates import NZ, TRANSLATION, FilterCoords
+from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
     THETA_NOMINAL,
     THETA_SEC42,
@@ -23,7 +24,6 @@ from gateway.model import (
     system_matrix,
     track_intensity,
 )
-from gateway.rbpf import RBPF, RBPFConfig
 from gateway.records import Sample
 
 V = 42.5

@@ -11,7 +11,7 @@ import scipy.linalg
 
 from firmware_sim.truth import simulate
 from gateway.errors import ModelError
-from gateway.model import (
+from gateway.model.vehicle import (
     NX,
     SENSORS_3,
     SENSORS_5,

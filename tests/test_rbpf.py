@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.accuracy import FS_HZ, V_MPS, make_data, run_filter
+from firmware_sim.studies.accuracy import FS_HZ, V_MPS, make_data, run_filter
 from gateway.errors import EstimatorError
-from gateway.model import THETA_NOMINAL, THETA_SEC42
-from gateway.rbpf import RBPF, RBPFConfig
+from gateway.estimator.rbpf import RBPF, RBPFConfig
+from gateway.model.vehicle import THETA_NOMINAL, THETA_SEC42
 from gateway.records import Estimate, Sample
 
 
@@ -171,7 +171,7 @@ def test_step_in_csy_is_tracked() -> None:
 
 def test_move_survives_a_degenerate_cloud() -> None:
     """Two distinct particles in 3-D (rank-1 covariance): the move still works."""
-    from gateway.particles import liu_west_move
+    from gateway.estimator.particles import liu_west_move
 
     z = np.log(np.array([[2e4, 3e6, 0.15]] * 5 + [[3e4, 4e6, 0.2]] * 5))
     w = np.full(10, 0.1)

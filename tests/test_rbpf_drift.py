@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.accuracy import make_data, run_filter
-from gateway.model import THETA_NOMINAL
-from gateway.rbpf import RBPFConfig
+from firmware_sim.studies.accuracy import make_data, run_filter
+from gateway.estimator.rbpf import RBPFConfig
+from gateway.model.vehicle import THETA_NOMINAL
 
 FS_HZ = 1000.0
 T_WARM_S, T_RAMP_S, T_HOLD_S = 15.0, 30.0, 10.0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gateway.monitor import MonitorConfig, after_reseed, cusum, initial_state, update
+from gateway.estimator.monitor import MonitorConfig, after_reseed, cusum, initial_state, update
 
 
 def feed(cfg: MonitorConfig, state: np.ndarray, nis: np.ndarray, dof: int) -> list[int]:

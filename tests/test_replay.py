@@ -12,8 +12,8 @@ import pytest
 from firmware_sim.output import write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import default_codec
-from gateway.e2e import e2e_crc
+from gateway.can.codec import default_codec
+from gateway.can.e2e import e2e_crc
 
 PARTICLES = "64"
 

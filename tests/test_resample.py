@@ -16,17 +16,12 @@ import scipy.signal
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import DecodedFrame, default_codec
+from gateway.can.codec import DecodedFrame, default_codec
 from gateway.errors import ConfigError, FrameError, StateError
-from gateway.lowpass import LowpassState, design_lowpass, lowpass_step
-from gateway.model import SENSORS_5
+from gateway.frontend.lowpass import LowpassState, design_lowpass, lowpass_step
+from gateway.frontend.resample import NO_LOWPASS_HZ, PAPER_LOWPASS_HZ, Resampler, ResamplerConfig
+from gateway.model.vehicle import SENSORS_5
 from gateway.records import GridSample, Quality
-from gateway.resample import (
-    NO_LOWPASS_HZ,
-    PAPER_LOWPASS_HZ,
-    Resampler,
-    ResamplerConfig,
-)
 
 NODE_OF_MESSAGE = {"WSN_Lat": "WSN", "BGN_Lat": "BGN", "BDN_Lat": "BDN", "VEH_Speed": "VEH"}
 NODE_OF_SENSOR = {"acc_w1": "WSN", "acc_w2": "WSN", "acc_b": "BGN", "gyro_b": "BGN",
@@ -332,7 +327,7 @@ def test_estimator_worker_imports_leave_out_the_filter_design():
     """A worker process imports the pipeline (for its estimator factory) but designs no
     filter: scipy.signal, most of a second per process here and half a minute under the
     VM's emulation, is imported only where a filter is designed."""
-    code = ("import sys, gateway.worker, gateway.pipeline, gateway.rbpf; "
+    code = ("import sys, gateway.runtime.worker, gateway.runtime.pipeline, gateway.estimator.rbpf; "
             "print('scipy.signal' in sys.modules)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120, check=True)

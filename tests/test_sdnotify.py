@@ -6,7 +6,7 @@ import socket
 
 import pytest
 
-from gateway.sdnotify import Notifier
+from gateway.service.sdnotify import Notifier
 
 
 @pytest.fixture

@@ -20,11 +20,11 @@ import pytest
 from firmware_sim.output import send_live
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.canbus import open_bus, open_node_bus
-from gateway.codec import default_codec
+from gateway.can.bus import open_bus, open_node_bus
+from gateway.can.codec import default_codec
 from gateway.config import Config, with_overrides
 from gateway.errors import FrameError
-from gateway.service import Service
+from gateway.service.daemon import Service
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -341,13 +341,13 @@ def test_a_worker_priority_not_applied_shows_in_health_frame_status_and_journal(
         tmp_path, monkeypatch, caplog):
     import dataclasses
 
-    import gateway.pipeline
-    from gateway.service import status_line
+    import gateway.runtime.pipeline
+    from gateway.service.daemon import status_line
 
-    real = gateway.pipeline.worker_settings
-    monkeypatch.setattr(gateway.pipeline, "worker_settings",
+    real = gateway.runtime.pipeline.worker_settings
+    monkeypatch.setattr(gateway.runtime.pipeline, "worker_settings",
                         lambda cfg: dataclasses.replace(real(cfg), lower_priority=refuse_nice))
-    caplog.set_level(logging.WARNING, logger="gateway.worker")
+    caplog.set_level(logging.WARNING, logger="gateway.runtime.worker")
     with Running(tmp_path, "nice", particles=32) as run:       # the worker is up
         n0 = len(run.decoded("GW_HealthFlags"))
         assert _wait(lambda: len(run.decoded("GW_HealthFlags")) >= n0 + 2, 10)

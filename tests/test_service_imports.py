@@ -20,7 +20,7 @@ with contextlib.redirect_stdout(io.StringIO()):
         cli.main(["run", "--help"])
     except SystemExit:
         pass
-import gateway.commands.run, gateway.service  # what ExecStart runs
+import gateway.commands.run, gateway.service.daemon  # what ExecStart runs
 print(json.dumps(sorted(sys.modules)))
 """
 

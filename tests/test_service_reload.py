@@ -1,7 +1,7 @@
 """SIGHUP: each reloadable key takes effect on the running service; any other key logs
 that it needs a restart and keeps its running value; a bad file changes nothing.
 
-The reloadable keys are ``gateway.service.RELOADABLE`` ([output] estimate_rate_hz,
+The reloadable keys are ``gateway.service.daemon.RELOADABLE`` ([output] estimate_rate_hz,
 health_rate_hz). Effects are observed from outside: frame rates off the virtual bus
 (a Service in a thread of this process, whose SIGHUP handler gets a real signal), and
 the notify datagrams and the journal lines of a real ``python -m gateway run --config``.
@@ -27,13 +27,13 @@ import pytest
 from firmware_sim.output import send_live
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.canbus import open_bus, open_node_bus
-from gateway.codec import default_codec
+from gateway.can.bus import open_bus, open_node_bus
+from gateway.can.codec import default_codec
 from gateway.config import load_config
-from gateway.model import PARAM_NAMES
+from gateway.model.vehicle import PARAM_NAMES
 from gateway.records import Estimate
-from gateway.service import RELOADABLE, Service
-from gateway.sinks import CanSink
+from gateway.service.daemon import RELOADABLE, Service
+from gateway.sinks.outputs import CanSink
 
 ROOT = Path(__file__).resolve().parent.parent
 HEALTH_ID = default_codec().message("GW_Health").frame_id
@@ -211,7 +211,7 @@ def test_sighup_with_a_key_that_needs_a_restart_logs_it_and_keeps_running_values
     """[estimator] particles changed: logged as needing a restart, the running value
     stays (the console's ``config`` shows it); an estimate rate above the running
     [estimator] output_rate_hz is refused whole; a broken file changes nothing."""
-    caplog.set_level(logging.INFO, logger="gateway.service")
+    caplog.set_level(logging.INFO, logger="gateway.service.daemon")
     with Reloading(tmp_path, particles=32, health_rate_hz=1.0) as run:
         svc = run.service
         run.hup(particles=64, health_rate_hz=2.0)

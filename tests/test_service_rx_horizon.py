@@ -14,12 +14,12 @@ import time
 
 import can
 
-import gateway.service
+import gateway.service.daemon
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
+from gateway.can.source import BusSource
 from gateway.config import Config, with_overrides
-from gateway.service import Service
-from gateway.source import BusSource
+from gateway.service.daemon import Service
 
 LAG_S = 2.0
 
@@ -79,7 +79,7 @@ def test_rx_horizon_is_the_newest_frame_read_then_wall_time_after_silence():
 def test_a_receive_thread_behind_the_kernel_loses_no_data(tmp_path, monkeypatch):
     frames = _frames(2.0)
     bus = LaggingBus(frames, 0.0002)
-    monkeypatch.setattr(gateway.service, "open_bus", lambda spec, **kwargs: bus)
+    monkeypatch.setattr(gateway.service.daemon, "open_bus", lambda spec, **kwargs: bus)
     cfg = with_overrides(Config(), {"bus.interface": "virtual", "bus.channel": "unused",
                                     "state.directory": str(tmp_path / "state"),
                                     "estimator.particles": 16})

@@ -11,9 +11,9 @@ from dbc import DBC_PATH
 from firmware_sim.output import write_log
 from firmware_sim.scenarios import SCENARIOS, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.codec import default_codec
+from gateway.can.codec import default_codec
 from gateway.errors import FrameError, InputError
-from gateway.interchange import write_csv
+from gateway.offline.interchange import write_csv
 
 DB = cantools.database.load_file(str(DBC_PATH), strict=True)
 SIGNAL_OF = {"acc_w1": ("WSN_Lat", "WSN_Acc1"), "acc_w2": ("WSN_Lat", "WSN_Acc2"),

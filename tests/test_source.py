@@ -7,8 +7,8 @@ import time
 import can
 import pytest
 
-from gateway.canbus import open_bus
-from gateway.source import BusSource, BusState, next_bus_state
+from gateway.can.bus import open_bus
+from gateway.can.source import BusSource, BusState, next_bus_state
 
 
 def _wait(cond, timeout_s=5.0):

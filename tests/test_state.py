@@ -1,4 +1,4 @@
-"""Tests of gateway.store: atomic files, JSON Lines durability, crashes, full disk, restarts."""
+"""Tests of gateway.sinks.store: atomic files, JSON Lines durability, crashes, full disk, restarts."""
 
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ import textwrap
 
 import pytest
 
-from gateway.alerts import AlertPolicy
+from gateway.alerts.policy import AlertPolicy
 from gateway.errors import StateError
-from gateway.model import THETA_NOMINAL
+from gateway.model.vehicle import THETA_NOMINAL
 from gateway.records import Alert, AlertState, Estimate, Severity
-from gateway.store import (
+from gateway.sinks.store import (
     ALERTS,
     CHECKPOINT,
     ESTIMATES,
@@ -87,7 +87,7 @@ def test_corrupt_checkpoint_is_set_aside_and_estimator_starts_fresh(tmp_path, da
 CRASH_CHILD = textwrap.dedent("""
     import os, sys
     from gateway.records import Alert, AlertState, Severity
-    from gateway.store import StateStore
+    from gateway.sinks.store import StateStore
     state_dir, target, arm_at = sys.argv[1], sys.argv[2], int(sys.argv[3])
     real_write, armed = os.write, False
 

@@ -17,12 +17,12 @@ import pytest
 
 from gateway.errors import StateError
 from gateway.records import Alert, AlertState, Severity
-from gateway.store import ALERTS, AUDIT, LogBounds, StateStore, files
+from gateway.sinks.store import ALERTS, AUDIT, LogBounds, StateStore, files
 
 CHILD = textwrap.dedent("""
     import os, signal, sys
     from gateway.records import Alert, AlertState, Severity
-    from gateway.store import ALERTS, LogBounds, StateStore, segments
+    from gateway.sinks.store import ALERTS, LogBounds, StateStore, segments
 
     state_dir, crash_at = sys.argv[1], sys.argv[2]
     if crash_at != "none":          # SIGKILL ourselves at one step of the 2nd rotation

@@ -22,12 +22,12 @@ from test_service import Running, _wait
 from firmware_sim.output import send_live, write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.alerts import CODE_TWO_SENDERS, SENDERS_SIDE, AlertPolicy, decode_code
-from gateway.canbus import open_node_bus
+from gateway.alerts.policy import CODE_TWO_SENDERS, SENDERS_SIDE, AlertPolicy, decode_code
+from gateway.can.bus import open_node_bus
 from gateway.config import Config, with_overrides
 from gateway.errors import InputError
+from gateway.offline.replay import replay
 from gateway.records import AlertState, Severity
-from gateway.replay import replay
 
 
 def test_policy_raises_once_per_episode_and_clears() -> None:

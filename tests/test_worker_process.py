@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from gateway.records import Estimate, Sample
-from gateway.worker import WORKER_NICE, WorkerLink, WorkerSettings
+from gateway.runtime.worker import WORKER_NICE, WorkerLink, WorkerSettings
 
 
 class CountingEstimator:
@@ -72,7 +72,7 @@ def test_the_worker_runs_at_lower_priority_and_says_so():
 
 
 def test_a_refused_priority_is_reported_in_stats_and_the_log(caplog):
-    caplog.set_level(logging.WARNING, logger="gateway.worker")
+    caplog.set_level(logging.WARNING, logger="gateway.runtime.worker")
     link = WorkerLink(_settings(lower_priority=refuse_nice), queue_blocks=4, keep_spare=False)
     try:
         assert link.wait_ready(60)

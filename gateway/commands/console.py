@@ -9,7 +9,7 @@ Ctrl-C cancels the line being typed. ``python -m serial.tools.miniterm PORT
 
 ``gateway console hash-pin`` makes the ``[serial] pin_hash`` line for the gateway's config
 instead: it reads the PIN without echo (twice, from a terminal; one line from a pipe)
-and prints the salted scrypt hash (``gateway.console.pin``).
+and prints the salted scrypt hash (``gateway.pin``).
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from typing import Protocol
 
 import serial
 
-from gateway.console.pin import hash_pin, pin_problem
 from gateway.errors import InputError
+from gateway.pin import hash_pin, pin_problem
 
 PROMPT_AT_END = re.compile(rb"(railgw[>#] |PIN: )$")
 LOCAL_EXIT = ("exit", "quit")

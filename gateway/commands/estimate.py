@@ -46,12 +46,12 @@ def run(args: argparse.Namespace) -> int:
     import numba
     import numpy as np
 
-    from gateway import report
-    from gateway.interchange import read_csv
-    from gateway.lanecode import max_threads
-    from gateway.model import AR_PAPER_DEFAULT, sensor_set
-    from gateway.offline import history_rows, to_grid
-    from gateway.rbpf import RBPF, RBPFConfig
+    from gateway.estimator.lanecode import max_threads
+    from gateway.estimator.rbpf import RBPF, RBPFConfig
+    from gateway.model.vehicle import AR_PAPER_DEFAULT, sensor_set
+    from gateway.offline import report
+    from gateway.offline.grid import history_rows, to_grid
+    from gateway.offline.interchange import read_csv
 
     if args.threads is not None:
         numba.set_num_threads(min(args.threads, max_threads()))

@@ -19,7 +19,6 @@ import numpy as np
 from gateway.cli import SEED, SPEED_MPS, config_value, integer, output_dir, real, writing
 from gateway.config import load_config
 from gateway.errors import InputError
-from gateway.identify.data import load_dataset
 from gateway.identify.misfit import MisfitConfig, Section, sections_from_positions
 from gateway.identify.optimise import METHODS, Budget
 from gateway.identify.params import ALL_NAMES, ParamPoint, resolve_names
@@ -34,10 +33,11 @@ from gateway.identify.report import (
     write_json,
     write_track_report,
 )
+from gateway.identify.sources import load_dataset
 from gateway.identify.synthetic import TRACK_KINDS, SyntheticSpec, demo_track, record
 from gateway.identify.track import read_track_csv, sine_track, write_track_csv
-from gateway.interchange import write_csv
-from gateway.model import AR_PAPER_DEFAULT, PARAM_NAMES
+from gateway.model.vehicle import AR_PAPER_DEFAULT, PARAM_NAMES
+from gateway.offline.interchange import write_csv
 
 
 def _range(text: str) -> tuple[float, float]:

@@ -6,7 +6,14 @@ import argparse
 import json
 
 from gateway.cli import SPEED_MPS, real
-from gateway.model import THETA_NOMINAL, Theta, VehicleParams, modes, stability, system_matrix
+from gateway.model.vehicle import (
+    THETA_NOMINAL,
+    Theta,
+    VehicleParams,
+    modes,
+    stability,
+    system_matrix,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

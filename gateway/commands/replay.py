@@ -10,7 +10,7 @@ from typing import Any
 from gateway.cli import output_path, real, writing
 from gateway.commands.run import add_overrides, config_from_args
 from gateway.errors import InputError
-from gateway.replay import alert_json, replay
+from gateway.offline.replay import alert_json, replay
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -57,8 +57,8 @@ def run(args: argparse.Namespace) -> int:
     if not result.estimates:
         raise InputError(f"expected sensor traffic the gateway could estimate from in "
                          f"{args.log}, got {result.frames} frames and no estimate")
-    from gateway import report
-    from gateway.offline import history_rows
+    from gateway.offline import report
+    from gateway.offline.grid import history_rows
 
     history = history_rows(result.estimates)
     settings = {"particles": cfg.estimator.particles, "sensors": cfg.estimator.sensors,

@@ -7,7 +7,7 @@ import logging
 
 from gateway.cli import SEED, config_value
 from gateway.config import Config, load_config, with_overrides
-from gateway.service import Service
+from gateway.service.daemon import Service
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from gateway.console.pin import PinHash, parse_pin_hash, verify_pin
 from gateway.errors import InputError
+from gateway.pin import PinHash, parse_pin_hash, verify_pin
 
 log = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ records, for the service and for the test doubles alike.
 
 Every method is called from the console's port thread: the service must make them
 thread-safe. Write methods are called only after login and a successful audit of the
-attempt, with canonical arguments (parameter names from :data:`gateway.model.PARAM_NAMES`,
+attempt, with canonical arguments (parameter names from :data:`gateway.model.vehicle.PARAM_NAMES`,
 a :class:`Severity`), and raise :class:`gateway.errors.InputError` ("expected ..., got
 ...") to refuse.
 """
@@ -23,10 +23,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from gateway.alerts import Levels
+from gateway.alerts.policy import Levels
 from gateway.console.session import LockoutState
 from gateway.errors import InputError
-from gateway.model import PARAM_NAMES, THETA_NOMINAL
+from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
 from gateway.records import Alert, Estimate, Severity
 
 
@@ -87,7 +87,7 @@ class ServiceView(Protocol):
       persisted estimate history (including baseline-reset events).
     - ``sensors()``: ``{message: {"rate_hz", "expected_hz", "accepted",
       "rejected": {reason: n}, "lost_frames", "timeouts", "timed_out",
-      "last_values": {signal: value}}}`` (see ``gateway.validate.MessageStats``).
+      "last_values": {signal: value}}}`` (see ``gateway.frontend.validate.MessageStats``).
     - ``bus()``: ``{"interface", "channel", "state", "open", "load_pct",
       "error_frames", "frames_rx", "frames_tx", "reopens", "dropped", "last_error"}``.
     - ``config_text()``: the running configuration as TOML (``gateway.config.as_toml``).

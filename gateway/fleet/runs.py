@@ -18,20 +18,22 @@ from pathlib import Path
 import numpy as np
 
 from gateway import __version__
-from gateway.alerts import AlertPolicy, ParamPolicy, default_params
-from gateway.codec import default_codec
+from gateway.alerts.policy import AlertPolicy, ParamPolicy, default_params
+from gateway.can.codec import default_codec
+from gateway.can.logs import read_log
 from gateway.config import Config
-from gateway.model import PARAM_NAMES, THETA_NOMINAL, Theta
-from gateway.pipeline import FrontEnd, worker_settings
+from gateway.frontend.chain import FrontEnd
+from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, Theta
+from gateway.offline.replay import alert_json
 from gateway.records import Alert, Estimate, Sample
-from gateway.replay import alert_json, read_log
-from gateway.worker import BLOCK_SAMPLES, WorkerLink
+from gateway.runtime.pipeline import worker_settings
+from gateway.runtime.worker import BLOCK_SAMPLES, WorkerLink
 
 PARAMS: tuple[str, ...] = PARAM_NAMES
 """Csy (N s/m), Csay (N s/m), conicity (-), in the estimator's order."""
 NOMINAL: dict[str, float] = dict(zip(PARAM_NAMES, THETA_NOMINAL.as_array(), strict=True))
 ON_TIME_FRAMES = 1000
-"""Frames between ``on_time`` calls, as ``gateway.replay.replay``."""
+"""Frames between ``on_time`` calls, as ``gateway.offline.replay.replay``."""
 
 __all__ = ["NOMINAL", "PARAMS", "RunEstimates", "RunSamples", "Theta", "estimate_run",
            "estimator_version", "log_samples", "thresholds"]
@@ -65,7 +67,7 @@ class RunEstimates:
 
 
 def thresholds() -> dict[str, ParamPolicy]:
-    """The gateway's alert thresholds (``gateway.alerts.default_params``), by parameter."""
+    """The gateway's alert thresholds (``gateway.alerts.policy.default_params``), by parameter."""
     return default_params()
 
 
@@ -91,7 +93,7 @@ def log_samples(path: str | Path, cfg: Config) -> RunSamples:
             out += front.on_time(msg.timestamp)
     out += front.finish()
     ny = len(out[0].values) if out else cfg.estimator.sensors
-    from gateway.model import SENSORS_3, SENSORS_5
+    from gateway.model.vehicle import SENSORS_3, SENSORS_5
 
     sensors = SENSORS_3 if ny == 3 else SENSORS_5
     return RunSamples(

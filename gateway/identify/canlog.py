@@ -1,10 +1,10 @@
 """CAN-log input for identification: a python-can log through the gateway's own front end.
 
 The frames of any log python-can reads (candump ``.log``, ``.asc``, ``.blf``, ``.trc``,
-``.mf4``) go through exactly the service's stages (:class:`gateway.pipeline.FrontEnd`:
+``.mf4``) go through exactly the service's stages (:class:`gateway.frontend.chain.FrontEnd`:
 decode and E2E validation, the fixed-rate resampler on each node's reconstructed
 clock, the operating-condition gate) and come out as the
-:class:`~gateway.interchange.Recording` an interchange CSV gives:
+:class:`~gateway.offline.interchange.Recording` an interchange CSV gives:
 
 - **Time.** Seconds since the log's first frame, on the resampler's grid
   (``[resampler] fs_hz``, 1 kHz by default).
@@ -24,15 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.codec import default_codec
+from gateway.can.codec import default_codec
+from gateway.can.logs import read_log
 from gateway.config import Config, with_overrides
 from gateway.errors import InputError
+from gateway.frontend.chain import FrontEnd
 from gateway.identify.data import MAX_MISSING_FRACTION
-from gateway.interchange import Recording
-from gateway.model import SENSORS_5
-from gateway.pipeline import FrontEnd
+from gateway.model.vehicle import SENSORS_5
+from gateway.offline.interchange import Recording
 from gateway.records import Sample
-from gateway.replay import read_log
 
 log = logging.getLogger(__name__)
 

@@ -1,23 +1,21 @@
 """Identification datasets: turn a recorded source into a checked, uniformly sampled run.
 
 :func:`load_dataset` is the seam for sources: an interchange CSV
-(:mod:`gateway.interchange`) or a CAN log (:mod:`gateway.identify.canlog`, through the
+(:mod:`gateway.offline.interchange`) or a CAN log (:mod:`gateway.identify.canlog`, through the
 gateway's own decode, validation, resampler and gate). Each produces a
-:class:`~gateway.interchange.Recording` for :func:`dataset_from_recording`.
+:class:`~gateway.offline.interchange.Recording` for :func:`dataset_from_recording`.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from gateway.config import Config
 from gateway.errors import InputError
-from gateway.interchange import SENSOR_COLUMNS, Recording, read_csv
-from gateway.model import SENSORS_5
+from gateway.model.vehicle import SENSORS_5
+from gateway.offline.interchange import SENSOR_COLUMNS, Recording
 
 log = logging.getLogger(__name__)
 
@@ -126,23 +124,3 @@ def _speed(rec: Recording, speed_mps: float | None, n: int) -> np.ndarray:
     return v
 
 
-def load_dataset(source: str | Path, sensors: tuple[str, ...] | None = None,
-                 speed_mps: float | None = None, config: Config | None = None) -> Dataset:
-    """The source seam: read a recorded run into a Dataset, chosen by the file ending.
-
-    ``.csv``: interchange CSV. ``.log``, ``.asc``, ``.blf``, ``.trc``, ``.mf4``: a CAN log
-    (python-can), put through the gateway's front end with ``config``'s resampler and
-    gating settings (default: built-in). ``speed_mps`` replaces the recorded speed.
-    """
-    from gateway.identify.canlog import CAN_LOG_SUFFIXES, read_can_log
-
-    path = Path(source)
-    suffix = path.suffix.lower()
-    if suffix == ".csv":
-        rec = read_csv(path)
-    elif suffix in CAN_LOG_SUFFIXES:
-        rec = read_can_log(path, config, speed_mps)
-    else:
-        raise InputError(f"expected an interchange CSV (.csv) or a CAN log "
-                         f"({', '.join(CAN_LOG_SUFFIXES)}), got {str(path)!r}")
-    return dataset_from_recording(rec, sensors, speed_mps)

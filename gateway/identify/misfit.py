@@ -29,7 +29,7 @@ from gateway.identify.params import ParamPoint
 from gateway.identify.simulate import forced_response
 from gateway.identify.sync import LagEstimate, estimate_lag
 from gateway.identify.track import Track, wheel_alignment
-from gateway.model import VehicleParams
+from gateway.model.vehicle import VehicleParams
 
 J_PENALTY = 1e3
 """Misfit returned when the simulation is not finite (a strongly unstable point)."""

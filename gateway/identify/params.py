@@ -1,7 +1,7 @@
 """The identification parameter space: every model parameter by name, nominal and tolerance.
 
 A *parameter point* is the full set of 25 model parameters (the 22 fields of
-:class:`gateway.model.VehicleParams` plus the monitored ``theta`` = Csy, Csay, conicity),
+:class:`gateway.model.vehicle.VehicleParams` plus the monitored ``theta`` = Csy, Csay, conicity),
 all in SI units and named as in the model (``ksy_n_per_m``, ``csy_ns_per_m``...).
 Optimisers work on a short vector of *free* parameters in relative units:
 ``value = nominal * (1 + u)`` with ``u`` in ``[-tolerance, +tolerance]``, optionally
@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from gateway.errors import InputError
-from gateway.model import PARAM_NAMES, THETA_NOMINAL, VehicleParams
+from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, VehicleParams
 
 VEHICLE_NAMES: tuple[str, ...] = tuple(f.name for f in fields(VehicleParams))
 """The fixed-parameter names, in dataclass order."""

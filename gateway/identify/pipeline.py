@@ -27,7 +27,7 @@ from gateway.identify.prediction_error import PredictionErrorMisfit, standard_er
 from gateway.identify.screening import MorrisResult, morris, select
 from gateway.identify.sync import LagEstimate
 from gateway.identify.track import Track
-from gateway.model import AR_PAPER_DEFAULT, PARAM_NAMES
+from gateway.model.vehicle import AR_PAPER_DEFAULT, PARAM_NAMES
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """Maximum likelihood without a track record: the Kalman one-step prediction-error misfit.
 
 With no track input the two track velocities are the model's white noise of
-intensity ``Q = 4 pi^2 Ar v^2`` (:func:`gateway.model.track_intensity`, Ar in the
+intensity ``Q = 4 pi^2 Ar v^2`` (:func:`gateway.model.vehicle.track_intensity`, Ar in the
 paper's printed units, default 2 x 0.33e-3) and the sensors carry white noise R
 (the paper's Qv). The exact (Van Loan) discrete model at the data rate gives, through
 the stationary Kalman filter, innovations ``nu_k`` with covariance S, and
@@ -29,7 +29,7 @@ from gateway.identify.data import Dataset
 from gateway.identify.linalg import dare_filter, expm
 from gateway.identify.misfit import Section, check_sections
 from gateway.identify.params import ParamPoint
-from gateway.model import (
+from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
     SENSOR_NOISE_VAR,
     input_matrix,

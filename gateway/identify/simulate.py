@@ -16,7 +16,7 @@ import numpy as np
 
 from gateway.identify.linalg import expm
 from gateway.identify.params import ParamPoint
-from gateway.model import input_matrix, output_matrix, system_matrix
+from gateway.model.vehicle import input_matrix, output_matrix, system_matrix
 
 
 def discretise_forced(A: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:

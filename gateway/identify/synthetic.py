@@ -3,7 +3,7 @@
 The truth is simulated ``oversample`` times faster than the recording rate (2 kHz for a
 200 Hz recording), then decimated with a zero-phase anti-alias FIR filter, as an
 accelerometer's front end would, and white sensor noise of the paper's variances
-(``gateway.model.SENSOR_NOISE_VAR``) is added at the recording rate. The
+(``gateway.model.vehicle.SENSOR_NOISE_VAR``) is added at the recording rate. The
 identification simulates at its own, lower rate, so the two discretisations differ.
 """
 
@@ -20,7 +20,7 @@ from gateway.identify.data import Dataset
 from gateway.identify.params import ParamPoint
 from gateway.identify.simulate import forced_response
 from gateway.identify.track import Track, jointed_track, random_track, wheel_alignment
-from gateway.model import SENSOR_NOISE_VAR, SENSORS_5
+from gateway.model.vehicle import SENSOR_NOISE_VAR, SENSORS_5
 
 
 @dataclass(frozen=True)

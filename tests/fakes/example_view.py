@@ -3,7 +3,7 @@
 :meth:`ExampleView.example` is a bogie whose lateral damper has faded to a third of
 nominal (ALARM) and whose wheelset conicity is high (ADVISORY, acknowledged), with two
 days of hourly history: the transcript in ``docs/console.md``. Alerts, thresholds and
-every write go through a real :class:`gateway.alerts.AlertPolicy` (restored from the
+every write go through a real :class:`gateway.alerts.policy.AlertPolicy` (restored from the
 example's alert history, exactly as the service restores its own), so the example can
 never judge differently from the product. Every audit entry is kept in
 :attr:`ExampleView.audit_log`; ``audit_ok = False`` makes audit writes fail, and the
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from gateway import __version__
-from gateway.alerts import AlertPolicy
+from gateway.alerts.policy import AlertPolicy
 from gateway.config import Config, SerialConfig, as_toml
 from gateway.console.session import LockoutState
 from gateway.console.view import (
@@ -32,10 +32,10 @@ from gateway.console.view import (
     history_row,
 )
 from gateway.errors import InputError
-from gateway.model import PARAM_NAMES
-from gateway.pipeline import FrontEndStats
+from gateway.frontend.stats import FrontEndStats
+from gateway.model.vehicle import PARAM_NAMES
 from gateway.records import Alert, AlertState, Estimate, Severity
-from gateway.service_view import front_end_view
+from gateway.service.view import front_end_view
 
 
 class ExampleView:
@@ -187,7 +187,7 @@ class ExampleView:
         cfg = dataclasses.replace(base, serial=SerialConfig(
             device="/dev/ttyS1", pin_hash=pin_hash),
             estimator=dataclasses.replace(base.estimator, particles=1000))
-        log = [f"INFO gateway.service: checkpoint {k} written (data time {k * 5.0:.1f} s)"
+        log = [f"INFO gateway.service.daemon: checkpoint {k} written (data time {k * 5.0:.1f} s)"
                for k in range(34_540, 34_560)]
         status = {"state": "Degraded", "uptime_s": 48 * 3600.0 + 312.0, "version": __version__,
                   "data_time_s": t_now, "reason": "BDN_Lat timed out",

@@ -40,8 +40,8 @@ def main(argv: list[str]) -> int:
     from firmware_sim.output import send_live
     from firmware_sim.scenarios import get_scenario
     from firmware_sim.simulation import SimConfig, Simulation
-    from gateway.canbus import open_bus, open_node_bus
-    from gateway.codec import default_codec
+    from gateway.can.bus import open_bus, open_node_bus
+    from gateway.can.codec import default_codec
     from gateway.errors import FrameError
 
     lock = threading.Lock()

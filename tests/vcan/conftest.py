@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import pytest
 import vcanlib
 
-from gateway.codec import Codec, default_codec
+from gateway.can.codec import Codec, default_codec
 
 
 def _required() -> bool:

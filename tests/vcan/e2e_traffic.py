@@ -61,7 +61,7 @@ def log_name() -> str:
 
 def scenario():  # -> firmware_sim.scenarios.Scenario (imported lazily: numba)
     from firmware_sim.scenarios import V_PAPER, Scenario
-    from gateway.model import THETA_NOMINAL
+    from gateway.model.vehicle import THETA_NOMINAL
 
     theta = THETA_NOMINAL.as_array() * np.array([CSY_FACTOR, 1.0, 1.0])
     return Scenario("worn-lateral", f"lateral damper at {CSY_FACTOR:g} x nominal from the "
@@ -114,7 +114,7 @@ def warm(directory: Path | None) -> None:
     import tempfile
 
     from gateway.config import Config, with_overrides
-    from gateway.replay import replay
+    from gateway.offline.replay import replay
 
     with tempfile.TemporaryDirectory(prefix="rgw-e2e-warm-") as tmp:
         log = traffic_log(directory or Path(tmp))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from vcanlib import CAN_ERR_FLAG, RawCan, wait_for
 
-from gateway.canbus import open_bus
-from gateway.source import (
+from gateway.can.bus import open_bus
+from gateway.can.source import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_ACTIVE,

@@ -8,10 +8,10 @@ import can
 import pytest
 from vcanlib import CAN_EFF_FLAG, CAN_SFF_MASK, RawCan, kernel_filters, wait_for
 
-from gateway.canbus import open_bus
+from gateway.can.bus import open_bus
+from gateway.can.source import BusSource, BusState
 from gateway.config import Config, with_overrides
-from gateway.service import Service
-from gateway.source import BusSource, BusState
+from gateway.service.daemon import Service
 
 pytestmark = pytest.mark.vcan
 

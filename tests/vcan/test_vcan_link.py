@@ -12,8 +12,8 @@ import can
 import pytest
 from vcanlib import RawCan, add_vcan, ip, wait_for
 
-from gateway.canbus import open_bus
-from gateway.source import BusSource
+from gateway.can.bus import open_bus
+from gateway.can.source import BusSource
 
 pytestmark = pytest.mark.vcan
 

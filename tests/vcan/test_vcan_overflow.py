@@ -9,8 +9,8 @@ import can
 import pytest
 from vcanlib import RawCan, socket_drops, wait_for
 
-from gateway.canbus import open_bus
-from gateway.source import BusSource
+from gateway.can.bus import open_bus
+from gateway.can.source import BusSource
 
 pytestmark = pytest.mark.vcan
 
@@ -42,7 +42,7 @@ def test_rxq_ovfl_counts_every_dropped_frame(channel):
 def test_bus_source_counts_kernel_drops(channel):
     """The source, stalled while frames pile up, counts what the kernel dropped for it.
 
-    Until gateway/source.py reads the count (docs/vcan.md, "Kernel drops"), its
+    Until gateway/can/source.py reads the count (docs/vcan.md, "Kernel drops"), its
     ``dropped_kernel`` stays 0 and this test reports xfail; everything before that
     check must pass already.
     """

@@ -9,9 +9,9 @@ import can
 import pytest
 from vcanlib import grow_rcvbuf, python_module, socket_drops, wait_for
 
-from gateway.canbus import open_bus
-from gateway.e2e import COUNTER_MODULUS
-from gateway.source import BusSource
+from gateway.can.bus import open_bus
+from gateway.can.e2e import COUNTER_MODULUS
+from gateway.can.source import BusSource
 
 pytestmark = pytest.mark.vcan
 

@@ -80,7 +80,7 @@ if .venv/bin/python - <<'EOF' > "$OUT/imports.txt" 2>&1
 import sys
 from gateway.cli import build_parser
 build_parser(["run", "--config", "/etc/railgw/railgw.toml"])
-import gateway.service, gateway.worker  # noqa: E401,F401 - the run command's graph
+import gateway.service.daemon, gateway.runtime.worker  # noqa: E401,F401 - the run command's graph
 bad = sorted(m for m in sys.modules if m.split(".")[0] in ("SALib", "dill", "multiprocess")
              or m.startswith("gateway.identify") or m == "gateway.commands.identify")
 print("offline stack imported by 'gateway run':", bad or "none")

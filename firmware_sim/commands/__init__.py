@@ -1,0 +1,1 @@
+"""``python -m gateway`` subcommands that need the simulator (entry points ``railgw.commands``)."""

@@ -1,0 +1,1 @@
+"""Accuracy and speed studies of the gateway against the simulator."""

@@ -1,0 +1,1 @@
+"""The alert policy: thresholds, hysteresis, codes."""

@@ -1,0 +1,1 @@
+"""The RBPF estimator: filter, Kalman and discretisation kernels, particles, monitor."""

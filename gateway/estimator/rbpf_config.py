@@ -1,0 +1,106 @@
+"""Configuration of the RBPF estimator: one frozen, validated dataclass."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gateway.errors import EstimatorError
+from gateway.estimator.monitor import MonitorConfig
+from gateway.model.vehicle import (
+    AR_PAPER_DEFAULT,
+    PARAM_NAMES,
+    THETA_NOMINAL,
+    Theta,
+    VehicleParams,
+    sensor_set,
+)
+
+AR_NAME = "ar_paper"
+"""Name of the optional 4th parameter (Ar in the paper's printed units)."""
+
+
+@dataclass(frozen=True)
+class RBPFConfig:
+    """Settings of the estimator. Factors are relative to ``nominal`` (and ``ar_paper``).
+
+    ``prior_*``: uniform initial box (paper: 0.3-2.5 x for dampers, 0.3-3.5 x for lambda);
+    ``support_*``: hard bounds particles may never leave (log-space clip);
+    ``reseed_*``: log-uniform box for particles re-drawn after a detected change;
+    ``ar_prior``: log-uniform factor range on Ar when ``estimate_ar``;
+    ``ess_threshold``: resample when the effective sample size falls below this
+    fraction of m (0.2: each resample-move is an approximation, and at 0.5 the fast
+    start-up contraction made ~3x as many; docs/estimator.md "Start-up lock-in");
+    ``floor_rel``/``floor_reference``: roughening-std floor, a fraction of the nominal
+    value (default) or of the parameter's own value;
+    ``walk_rel_per_sqrt_s``: random-walk evolution of each parameter, relative std per
+    square root of second of updated data (0: a static parameter, as in the paper;
+    Ar, when estimated, stays static);
+    ``output_every``: default decimation of :meth:`RBPF.run` (one estimate per that many
+    samples; :meth:`RBPF.step` always returns one);
+    ``threads``: numba threads for the kernels (None: all; 1 below 16 chunks, where the
+    thread hand-off costs more than it saves).
+    """
+
+    fs_hz: float
+    n_particles: int = 1000
+    delta: float = 0.99
+    ess_threshold: float = 0.2
+    sensors: int = 3
+    ar_paper: float = AR_PAPER_DEFAULT
+    estimate_ar: bool = False
+    seed: int | None = 0
+    prior_lo: tuple[float, float, float] = (0.3, 0.3, 0.3)
+    prior_hi: tuple[float, float, float] = (2.5, 2.5, 3.5)
+    support_lo: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    support_hi: tuple[float, float, float] = (10.0, 10.0, 10.0)
+    reseed_lo: tuple[float, float, float] = (0.1, 0.1, 0.3)
+    reseed_hi: tuple[float, float, float] = (2.5, 2.5, 3.5)
+    reseed_fraction: float = 0.5
+    ar_prior: tuple[float, float] = (0.25, 4.0)
+    floor_rel: float = 1e-3
+    walk_rel_per_sqrt_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    floor_reference: str = "nominal"
+    speed_tol: float = 2e-3
+    threads: int | None = None
+    output_every: int = 1
+    resample: bool = True
+    monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
+    nominal: Theta = THETA_NOMINAL
+    params: VehicleParams = field(default_factory=VehicleParams)
+
+    def __post_init__(self) -> None:
+        if not (self.fs_hz > 0 and np.isfinite(self.fs_hz)):
+            raise EstimatorError(f"expected a positive sample rate, got {self.fs_hz} Hz")
+        if self.n_particles < 2:
+            raise EstimatorError(f"expected at least 2 particles, got {self.n_particles}")
+        if not 0.0 < self.delta < 1.0:
+            raise EstimatorError(f"expected 0 < delta < 1, got {self.delta}")
+        sensor_set(self.sensors)
+        if self.floor_reference not in ("nominal", "value"):
+            raise EstimatorError(f"expected floor_reference 'nominal' or 'value', got "
+                                 f"{self.floor_reference!r}")
+        if len(self.walk_rel_per_sqrt_s) != 3 or not all(
+                0.0 <= w < 1.0 for w in self.walk_rel_per_sqrt_s):
+            raise EstimatorError(f"expected three random-walk rates in [0, 1) per sqrt(s), "
+                                 f"got {self.walk_rel_per_sqrt_s}")
+        if not self.ar_paper > 0:
+            raise EstimatorError(f"expected a positive track roughness Ar, got {self.ar_paper}")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return PARAM_NAMES + ((AR_NAME,) if self.estimate_ar else ())
+
+    @property
+    def nominal_array(self) -> np.ndarray:
+        """Nominal values (d,) of the estimated parameters."""
+        nom = self.nominal.as_array()
+        return np.append(nom, self.ar_paper) if self.estimate_ar else nom
+
+    def box(self, lo: tuple[float, ...], hi: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Absolute bounds (d,), (d,) from factor tuples (Ar uses ``ar_prior``)."""
+        lo_a, hi_a = np.array(lo, dtype=float), np.array(hi, dtype=float)
+        if self.estimate_ar:
+            lo_a, hi_a = np.append(lo_a, self.ar_prior[0]), np.append(hi_a, self.ar_prior[1])
+        return lo_a * self.nominal_array, hi_a * self.nominal_array

@@ -1,0 +1,1 @@
+"""Frames to estimator samples: validation, clock sync, low-pass, resampler, gate."""

@@ -1,0 +1,1 @@
+"""Offline tools on recordings: interchange CSV, grid, replay, reports."""

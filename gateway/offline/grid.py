@@ -1,0 +1,131 @@
+"""Offline estimation input: put a recorded run on the estimator's uniform sample grid.
+
+Grid rule (``to_grid``), for uneven CSV times:
+
+- the rate is ``1 / median(dt)`` of the recorded times; the grid starts at the first
+  time and steps by that period up to the last time;
+- each sensor is interpolated linearly between its two neighbouring *valid* recorded
+  values; a grid point is **missing** (NaN, the estimator predicts without that
+  sensor) when those neighbours are more than ``GAP_PERIODS`` = 1.5 grid periods apart,
+  i.e. across a gap or a dropout;
+- speed comes from the ``speed_mps`` column when present (interpolated the same way,
+  but bridged across gaps since it varies slowly), else from the ``--speed`` value;
+- a grid point with no valid sensor is a predict-only sample (``update=False``).
+
+Bounds, checked before anything is allocated: the grid rate is 1 Hz to 100 kHz, no gap
+between two rows is longer than ``MAX_GAP_S`` (the estimator would predict through it
+point by point), and the grid has at most ``MAX_GRID_POINTS`` points (about 2.8 h at
+1 kHz, ~0.7 GB of grid). A longer recording is split into runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from gateway.errors import InputError
+from gateway.offline.interchange import Recording
+from gateway.records import Estimate, Sample
+
+GAP_PERIODS = 1.5
+MAX_GAP_S = 60.0
+MAX_GRID_POINTS = 10_000_000
+MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 100_000.0
+
+
+@dataclass(frozen=True)
+class GridData:
+    """Samples on a uniform grid. ``t_s`` (K,), ``values`` (K, ny) NaN = missing,
+    ``speed_mps`` (K,), ``update`` (K,) bool; ``fs_hz`` the grid rate."""
+
+    t_s: np.ndarray
+    values: np.ndarray
+    speed_mps: np.ndarray
+    update: np.ndarray
+    fs_hz: float
+    sensors: tuple[str, ...]
+
+    def samples(self) -> Iterator[Sample]:
+        """The grid as estimator samples."""
+        for k in range(len(self.t_s)):
+            yield Sample(t_s=float(self.t_s[k]), values=self.values[k],
+                         speed_mps=float(self.speed_mps[k]), update=bool(self.update[k]))
+
+
+def _interp_gapped(t_grid: np.ndarray, t: np.ndarray, x: np.ndarray, max_gap_s: float,
+                   bridge: bool) -> np.ndarray:
+    valid = np.isfinite(x)
+    if not valid.any():
+        return np.full(len(t_grid), np.nan)
+    tv, xv = t[valid], x[valid]
+    out = np.interp(t_grid, tv, xv)
+    if bridge:
+        return out
+    nxt = np.clip(np.searchsorted(tv, t_grid, side="left"), 0, len(tv) - 1)
+    prv = np.clip(np.searchsorted(tv, t_grid, side="right") - 1, 0, len(tv) - 1)
+    exact = tv[nxt] == t_grid
+    span = tv[nxt] - tv[prv]
+    bad = ((span > max_gap_s) & ~exact) | (t_grid < tv[0]) | (t_grid > tv[-1])
+    out[bad] = np.nan
+    return out
+
+
+def to_grid(rec: Recording, sensors: tuple[str, ...], default_speed_mps: float) -> GridData:
+    """Resample a recording onto the uniform grid (rule in the module docstring)."""
+    t = np.asarray(rec.t_s, dtype=float)
+    if len(t) < 2:
+        raise InputError(f"{rec.source}: expected at least 2 samples, got {len(t)}")
+    period = float(np.median(np.diff(t)))
+    if not period > 0:
+        raise InputError(f"{rec.source}: expected increasing times, got median step {period}")
+    if not MIN_RATE_HZ <= 1.0 / period <= MAX_RATE_HZ:
+        raise InputError(f"{rec.source}: expected a sample rate of {MIN_RATE_HZ:g} to "
+                         f"{MAX_RATE_HZ:g} Hz (median time step), got {1.0 / period:.6g} Hz")
+    gaps = np.diff(t)
+    k = int(np.argmax(gaps))
+    if gaps[k] > MAX_GAP_S:
+        raise InputError(f"{rec.source}: expected no gap longer than {MAX_GAP_S:g} s "
+                         f"(split the recording), got {gaps[k]:.6g} s after t = {t[k]:.6g} s")
+    span = (t[-1] - t[0]) / period
+    if not span < MAX_GRID_POINTS:
+        raise InputError(f"{rec.source}: expected at most {MAX_GRID_POINTS} grid points "
+                         f"(split the recording), got {span:.3g} ({t[-1] - t[0]:.6g} s at "
+                         f"{1.0 / period:.6g} Hz)")
+    n = int(np.floor(span + 1e-9)) + 1
+    grid = t[0] + period * np.arange(n)
+    missing = [s for s in sensors if s not in rec.signals]
+    if missing:
+        raise InputError(f"{rec.source}: expected columns for sensors {list(sensors)}, "
+                         f"got none for {missing}")
+    values = np.column_stack([_interp_gapped(grid, t, rec.signals[s], GAP_PERIODS * period,
+                                             bridge=False) for s in sensors])
+    empty = [s for k, s in enumerate(sensors) if not np.isfinite(values[:, k]).any()]
+    if empty:
+        raise InputError(f"{rec.source}: expected values for sensors {list(sensors)}, got "
+                         f"none for {empty}")
+    if "speed" in rec.signals:
+        speed = _interp_gapped(grid, t, rec.signals["speed"], 0.0, bridge=True)
+        if not np.all(np.isfinite(speed)):
+            raise InputError(f"{rec.source}: expected at least one speed_mps value, got none")
+    else:
+        speed = np.full(n, float(default_speed_mps))
+    if np.any(~(speed > 0)):
+        raise InputError(f"{rec.source}: expected positive speeds, got min {speed.min()} m/s")
+    update = np.isfinite(values).any(axis=1)
+    return GridData(t_s=grid, values=values, speed_mps=speed, update=update,
+                    fs_hz=1.0 / period, sensors=tuple(sensors))
+
+
+def history_rows(estimates: list[Estimate]) -> list[dict[str, float]]:
+    """Flatten estimates into report rows: t_s, <name>_mean, <name>_std, ess, v_sy, v_say."""
+    rows = []
+    for e in estimates:
+        row: dict[str, float] = {"t_s": e.t_s}
+        for name, m, s in zip(e.names, e.mean, e.std, strict=True):
+            row[f"{name}_mean"] = m
+            row[f"{name}_std"] = s
+        row.update(ess=e.ess, v_sy_mps=e.v_sy_mps, v_say_mps=e.v_say_mps)
+        rows.append(row)
+    return rows

@@ -1,0 +1,1 @@
+"""The one pipeline (live and replay) and its estimator worker process."""

@@ -1,0 +1,1 @@
+"""The daemon: main loop, systemd notify, the console's view of it."""

@@ -1,0 +1,1 @@
+"""Outputs: CAN and log sinks, the state directory."""
