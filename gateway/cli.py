@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import importlib.metadata
 import logging
 import math
 import os
@@ -29,14 +30,21 @@ from gateway.errors import GatewayError, InputError
 COMMANDS: tuple[str, ...] = (
     "gateway.commands.model",
     "gateway.commands.estimate",
-    "firmware_sim.commands.bench",
     "gateway.commands.identify",
     "gateway.commands.console",
     "gateway.commands.run",
     "gateway.commands.replay",
-    "firmware_sim.commands.demo",
     "gateway.commands.fleet",
 )
+ENTRY_POINT_GROUP = "railgw.commands"
+"""Subcommands from other distributions (``name = "package.module"``), found as python-can
+finds interface plugins: ``demo`` and ``bench`` live in firmware_sim, which the gateway
+never imports."""
+
+
+def _plugins() -> dict[str, str]:
+    """Entry-point subcommands: command name -> module name."""
+    return {ep.name: ep.value for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -157,11 +165,14 @@ def _selected(argv: Sequence[str]) -> tuple[str, ...]:
     """Only the module of the command being run, so that e.g. ``run`` does not import the
     offline-identification stack; every module when the command is unknown or absent."""
     words = [a for a in argv if not a.startswith("-")]
+    plugins = _plugins()
     if words:
         module = f"gateway.commands.{words[0]}"
         if module in COMMANDS:
             return (module,)
-    return COMMANDS
+        if words[0] in plugins:
+            return (plugins[words[0]],)
+    return COMMANDS + tuple(plugins.values())
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -172,7 +183,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in _selected(argv) if argv is not None else COMMANDS:
+    for name in _selected(argv if argv is not None else []):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as err:

@@ -6,7 +6,8 @@ One job per module:
   the optional free track offset;
 - ``track``: the known track alignment (CSV, generators, lookup under each wheelset);
 - ``simulate``: the deterministic forced response to that track;
-- ``data``: a recorded source turned into a checked Dataset (the source seam);
+- ``data``: the Dataset record and its checks; ``sources``: the reader registry by
+  file ending (the source seam);
 - ``canlog``: a CAN log through the gateway's front end into a Recording;
 - ``synthetic``: "measured" data from a perturbed model, for tests and demos;
 - ``misfit``: Kraft's time-domain least-squares misfit over learn sections;

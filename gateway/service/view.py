@@ -16,7 +16,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any, TypeVar, cast
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, cast
 
 from gateway import __version__
 from gateway.config import as_toml
@@ -33,8 +33,36 @@ from gateway.model.vehicle import PARAM_NAMES
 from gateway.records import Alert, Severity
 
 if TYPE_CHECKING:
+    from gateway.alerts.policy import AlertPolicy
+    from gateway.can.source import BusSource
+    from gateway.config import Config
     from gateway.frontend.stats import FrontEndStats
-    from gateway.service.daemon import Service
+    from gateway.runtime.pipeline import Pipeline
+    from gateway.sinks.outputs import Health
+    from gateway.sinks.store import StateStore
+
+
+class Service(Protocol):
+    """The narrow part of the daemon (:class:`gateway.service.daemon.Service`) this view
+    reads and drives; a Protocol, so the view does not import the daemon (no cycle)."""
+
+    cfg: Config
+    store: StateStore
+    policy: AlertPolicy
+    pipeline: Pipeline | None
+    source: BusSource
+    recent_alerts: collections.deque[Alert]
+
+    @property
+    def uptime_s(self) -> float: ...
+
+    def health(self) -> Health: ...
+
+    def data_time_s(self) -> float: ...
+
+    def bus_load_pct(self) -> float: ...
+
+    def on_alert(self, alert: Alert) -> None: ...
 
 log = logging.getLogger(__name__)
 WRITE_TIMEOUT_S = 5.0
