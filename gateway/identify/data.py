@@ -1,8 +1,7 @@
 """Identification datasets: turn a recorded source into a checked, uniformly sampled run.
 
-:func:`load_dataset` is the seam for sources: an interchange CSV
-(:mod:`gateway.offline.interchange`) or a CAN log (:mod:`gateway.identify.canlog`, through the
-gateway's own decode, validation, resampler and gate). Each produces a
+The readers (:mod:`gateway.identify.sources`: an interchange CSV or a CAN log through
+the gateway's own decode, validation, resampler and gate) each produce a
 :class:`~gateway.offline.interchange.Recording` for :func:`dataset_from_recording`.
 """
 
