@@ -8,6 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from gateway.estimator.threads import configure, max_threads
+
+configure(max_threads())   # numba's globals, once per process, as a worker process does
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -143,16 +143,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numba
 
     from gateway.errors import InputError
-    from gateway.estimator.lanecode import max_threads
+    from gateway.estimator.threads import configure, kernel_threads
 
     if args.particles < 2 or args.seconds <= 0 or args.naive_steps < 1:
         raise InputError(f"expected particles >= 2, seconds > 0, naive steps >= 1, got "
                          f"{args.particles}, {args.seconds}, {args.naive_steps}")
-    if args.threads is not None:
-        numba.set_num_threads(max(1, min(args.threads, max_threads())))
+    configure(kernel_threads(args.particles, args.threads))
     results = {name: BENCHES[name](args) for name in (args.what or sorted(BENCHES))}
     if args.json:
         print(json.dumps(results, indent=1))

@@ -43,18 +43,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numba
     import numpy as np
 
-    from gateway.estimator.lanecode import max_threads
     from gateway.estimator.rbpf import RBPF, RBPFConfig
+    from gateway.estimator.threads import configure, kernel_threads
     from gateway.model.vehicle import AR_PAPER_DEFAULT, sensor_set
     from gateway.offline import report
     from gateway.offline.grid import history_rows, to_grid
     from gateway.offline.interchange import read_csv
 
-    if args.threads is not None:
-        numba.set_num_threads(min(args.threads, max_threads()))
+    configure(kernel_threads(args.particles, args.threads))
     sensors = sensor_set(args.sensors)
     rec = read_csv(args.csv)
     grid = to_grid(rec, sensors, args.speed)

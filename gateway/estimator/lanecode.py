@@ -13,13 +13,8 @@ Layout of a batch of matrices, shape ``(n_chunks, n * n * LANES)``: element ``(i
 of particle ``(ch, l)`` is at ``[ch, (i * n + j) * LANES + l]``; vectors ``(n_chunks,
 n * LANES)`` at ``[ch, i * LANES + l]``.
 
-Threads: the kernels run ``prange`` over chunks. Numba's default threading layer here is
-OpenMP, whose threads spin at the barrier; when another process competes for the two
-cores, a 1000-particle step was measured at 12-14 ms with OpenMP against 1-2.7 ms with
-numba's own ``workqueue`` layer. This module therefore selects ``workqueue`` (unless the
-layer was chosen explicitly); it only takes effect if no parallel kernel ran before in
-the process. The workqueue layer must not be entered from two Python threads at once:
-the estimator runs in one worker (process) at a time.
+Threads: the kernels run ``prange`` over chunks; the threading layer and the thread
+count are set once per process by :mod:`gateway.estimator.threads`, not here.
 
 Compilation: the source is compiled with this package's file name and a name that
 carries a hash of the generated text, so numba's on-disk cache works and is
@@ -101,28 +96,6 @@ def block_product(indent: int, *, a: str, a_row: str, b: str, b_row: str, n: int
                 lines.append(f"{pad}if {guard.format(i=i, j=j)}:")
                 lines += [pad + "    " + s for s in body]
     return lines
-
-
-def max_threads() -> int:
-    """The number of threads numba may use in this process (all cores by default)."""
-    return int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
-
-
-def _prefer_workqueue() -> None:
-    cfg: Any = numba.config
-    if cfg.THREADING_LAYER == "default":
-        cfg.THREADING_LAYER = "workqueue"
-
-
-_prefer_workqueue()
-
-
-def threading_layer() -> str:
-    """The active numba threading layer, or "unset" before the first parallel launch."""
-    try:
-        return str(numba.threading_layer())
-    except ValueError:
-        return "unset"
 
 
 @contextmanager

@@ -33,7 +33,7 @@ from gateway.estimator import checkpoint as ckpt
 from gateway.estimator import particles as pt
 from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.kalman import from_lanes, kf_step, n_chunks, to_lanes
-from gateway.estimator.lanecode import LANES, max_threads, threading_layer
+from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
 from gateway.estimator.rbpf_config import AR_NAME, RBPFConfig
 from gateway.model.coordinates import NZ, FilterCoords
@@ -74,12 +74,6 @@ class RBPF:
         self._v_ref = float("nan")
         self._w_of: np.ndarray | None = None
         self._w_cache = np.zeros(m)
-        wanted = config.threads or max_threads()
-        self._threads = 1 if self._nch < 16 else max(1, min(wanted, max_threads()))
-        if self._threads > 1 and threading_layer() == "omp":
-            log.warning("numba uses the OpenMP threading layer (numba was started before "
-                        "gateway.estimator.lanecode was imported); its threads spin and the filter "
-                        "slows down ~10x when other processes compete for the cores")
         self.reset(rng if rng is not None else np.random.default_rng(config.seed))
 
     # ----------------------------------------------------------------- state
@@ -179,16 +173,6 @@ class RBPF:
             raise EstimatorError(f"expected a positive finite speed in m/s, got {v}")
         return y
 
-    def _advance(self, sample: Sample, summarize: bool) -> Estimate | None:
-        saved = numba.get_num_threads()
-        if saved == self._threads:
-            return self._advance_inner(sample, summarize)
-        numba.set_num_threads(self._threads)
-        try:
-            return self._advance_inner(sample, summarize)
-        finally:
-            numba.set_num_threads(saved)
-
     def _weights(self) -> np.ndarray:
         """Normalised weights of ``self.logw``, cached per logw array (it is never mutated
         in place, only replaced), so each sample normalises once."""
@@ -197,7 +181,7 @@ class RBPF:
             self._w_of = self.logw
         return self._w_cache
 
-    def _advance_inner(self, sample: Sample, summarize: bool) -> Estimate | None:
+    def _advance(self, sample: Sample, summarize: bool) -> Estimate | None:
         y = self._validate(sample)
         v = float(sample.speed_mps)
         if not np.isfinite(self._v_ref) or abs(v - self._v_ref) > self.config.speed_tol \

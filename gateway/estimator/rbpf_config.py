@@ -39,8 +39,9 @@ class RBPFConfig:
     Ar, when estimated, stays static);
     ``output_every``: default decimation of :meth:`RBPF.run` (one estimate per that many
     samples; :meth:`RBPF.step` always returns one);
-    ``threads``: numba threads for the kernels (None: all; 1 below 16 chunks, where the
-    thread hand-off costs more than it saves).
+    ``threads``: numba threads wanted for the kernels (None: all); the process sets them
+    once (:func:`gateway.estimator.threads.kernel_threads`: 1 below 16 chunks, where the
+    thread hand-off costs more than it saves); the filter never changes numba's globals.
     """
 
     fs_hz: float

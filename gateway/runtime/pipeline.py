@@ -23,6 +23,7 @@ import can
 from gateway.alerts.policy import AlertPolicy
 from gateway.can.codec import Codec
 from gateway.config import Config, EstimatorConfig
+from gateway.estimator.threads import kernel_threads
 from gateway.frontend.chain import FrontEnd
 from gateway.records import Alert, Estimate, Sample
 from gateway.runtime.worker import BLOCK_SAMPLES, WorkerLink, WorkerSettings
@@ -47,8 +48,12 @@ def restore_estimator(blob: bytes) -> Any:
     return RBPF.restore(blob)
 
 
-def warm_estimator() -> None:
-    """Import the estimator and load its compiled kernels (a spare worker's warm-up)."""
+def warm_estimator(numba_threads: int) -> None:
+    """A worker process's start: numba's global settings (once, here), then import the
+    estimator and load its compiled kernels (so a spare worker waits warm)."""
+    from gateway.estimator.threads import configure
+
+    configure(numba_threads)
     import gateway.estimator.rbpf  # noqa: F401
 
 
@@ -58,7 +63,8 @@ def worker_settings(cfg: Config) -> WorkerSettings:
         builder=functools.partial(build_estimator, cfg.estimator, cfg.resampler.fs_hz),
         restorer=restore_estimator,
         output_interval_s=1.0 / cfg.estimator.output_rate_hz,
-        checkpoint_interval_s=cfg.estimator.checkpoint_interval_s, warmup=warm_estimator)
+        checkpoint_interval_s=cfg.estimator.checkpoint_interval_s,
+        warmup=functools.partial(warm_estimator, kernel_threads(cfg.estimator.particles)))
 
 
 @dataclass
