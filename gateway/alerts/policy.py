@@ -1,5 +1,9 @@
 """The alert policy: turns a stream of estimates into alert events (raise, escalate, clear, ack).
 
+Over 400 lines: thresholds, hold times, hysteresis, baselines and lifecycle act on one
+policy state. Candidate split (issue 13, later): the alert codes and the one
+threshold judge shared with console/view.py.
+
 Core module: no I/O, no clock. Time is the estimates' data time ``t_s``; the only state
 is :class:`AlertPolicy`'s, and :meth:`AlertPolicy.snapshot` / :meth:`AlertPolicy.restore`
 checkpoint it as a JSON-compatible dict. ``docs/alerts.md`` explains the defaults.

@@ -1,5 +1,8 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, exact KFs.
 
+Over 400 lines by a few: the filter's step, resample-move and checkpoint share its
+state; its kernels, config, particles and monitor are already separate modules.
+
 Each of m particles carries theta = (Csy, Csay, lambda) [and optionally Ar] and its own
 exact Kalman filter of the vehicle model (16 filter states, :mod:`gateway.model.coordinates`).
 Per sample: every filter predicts and updates (:func:`gateway.estimator.kalman.kf_step`), the

@@ -1,5 +1,9 @@
 """Streaming resampler: decoded sensor frames in, GridSamples on a fixed-rate grid out.
 
+Over 400 lines: the resampler's streaming state (per-node clocks, grid, deadlines, gaps,
+low-pass) is one checkpointable machine; clocksync and lowpass are already apart.
+Candidate split: the statistics and gap-reason records.
+
 - **Times.** Each node's sample index is unwrapped and mapped to a receive-clock time
   by its fitted clock model (:mod:`gateway.frontend.clocksync`): drift, jitter and reordering
   are absorbed there. Grid point ``j`` is at ``t_s = j / fs_hz`` on the receive clock.

@@ -1,5 +1,9 @@
 """The estimator worker: the RBPF in its own process, fed through a bounded queue.
 
+Over 400 lines, on purpose for now: the worker's whole lifecycle (spawn, warm spare,
+supervision, replay of unacknowledged blocks after a crash) is one state machine; the
+typed messages (issue 13, later part) will move into their own module.
+
 The service sends blocks of grid samples; the worker steps the estimator, returns
 estimates at the output rate (data time) and a checkpoint every
 ``checkpoint_interval_s`` of data time. The parent keeps every block sent since the

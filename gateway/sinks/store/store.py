@@ -1,5 +1,8 @@
 """The state directory: everything the service persists, written durably, read back at start.
 
+Over 400 lines, on purpose: the state directory's one API (every file's name and
+write rule); its file primitives, segments, ledger and codec are separate modules.
+
 Files (in ``state_dir``; see ``docs/alerts.md``)::
 
     checkpoint.bin      estimator checkpoint, latest only            atomic replace
