@@ -15,14 +15,12 @@ at once: the estimator runs in one worker (process) at a time.
 
 from __future__ import annotations
 
-import logging
 from typing import Any
 
 import numba
 
 from gateway.estimator.lanecode import LANES
 
-log = logging.getLogger(__name__)
 MIN_PARALLEL_CHUNKS = 16
 """Below this many lane chunks (``LANES`` particles each) one thread is faster."""
 
@@ -53,7 +51,4 @@ def configure(threads: int) -> None:
     cfg: Any = numba.config
     if cfg.THREADING_LAYER == "default":
         cfg.THREADING_LAYER = "workqueue"
-    if threads > 1 and threading_layer() == "omp":
-        log.warning("numba already runs the OpenMP threading layer; its threads spin and "
-                    "the filter slows down ~10x when other processes compete for the cores")
     numba.set_num_threads(max(1, min(threads, max_threads())))
