@@ -1,4 +1,4 @@
-"""Tests of gateway.alerts.policy: thresholds, gate, hold times, hysteresis, lifecycle, checkpoint."""
+"""Tests of gateway.alerts.policy: thresholds, gate, holds, hysteresis, lifecycle, restore."""
 
 from __future__ import annotations
 

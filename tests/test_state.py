@@ -1,4 +1,4 @@
-"""Tests of gateway.sinks.store: atomic files, JSON Lines durability, crashes, full disk, restarts."""
+"""Tests of gateway.sinks.store: atomic files, JSONL durability, crashes, full disk, restart."""
 
 from __future__ import annotations
 
