@@ -87,4 +87,4 @@ def test_the_reader_check_finds_an_unused_key(tmp_path):
     assert readers("serial", "baudrate", tmp_path) == ["b.py"]
     assert readers("bus", "channel", tmp_path) == []
     assert readers("output", "estimate_rate_hz", tmp_path) == []
-    assert "service.py" in readers("output", "estimate_rate_hz")
+    assert "service/daemon.py" in readers("output", "estimate_rate_hz")

@@ -58,7 +58,7 @@ def test_wheel_modules_equal_the_tracked_sources(dists):
     assert not missing, f"tracked sources missing from the wheel: {missing}"
     assert not extra, (f"the wheel has files that are not tracked product sources "
                        f"(untracked module? test code?): {extra}")
-    assert {"gateway/commands/run.py", "gateway/store/__init__.py",
+    assert {"gateway/commands/run.py", "gateway/sinks/store/__init__.py",
             "gateway/console/__init__.py", "gateway/identify/__init__.py"} <= shipped
 
 
