@@ -92,9 +92,10 @@ class SourceStats:
     last_error: str = ""
     rx_horizon_s: float = -math.inf
     """Receive-clock time (s, ``time.time()`` base) up to which every frame has been taken
-    off the bus: the newest frame's timestamp while frames flow, the wall time after a
-    receive that waited and found none. Behind wall time when this thread lags the
-    kernel; a consumer must not declare data missing past it."""
+    off the bus: the newest frame's timestamp while frames flow (it follows a step of the
+    receive clock, back or forward), that plus the wall time since after a receive that
+    waited and found none. Behind wall time when this thread lags the kernel; a consumer
+    must not declare data missing past it."""
 
 
 class BusSource:
@@ -200,6 +201,8 @@ class BusSource:
         put = self._queue.put_nowait
         drops_before = stats.dropped_kernel  # a reopened socket counts from 0 again
         n = 0
+        last_stamp_s = -math.inf
+        last_wall_s: float | None = None     # wall time when the newest frame was taken
         try:
             while not self._stop.is_set():
                 msg = bus.recv(timeout=0.1)
@@ -207,10 +210,17 @@ class BusSource:
                 if msg is None or n % KERNEL_DROPS_EVERY_FRAMES == 0:
                     self._count_kernel_drops(bus, drops_before)
                 if msg is None:
-                    stats.rx_horizon_s = time.time()
+                    # Nothing waits: the horizon is "now" on the frames' own clock (the
+                    # newest stamp plus the wall time since), not wall time, so a receive
+                    # clock that stepped away from wall time keeps one time base.
+                    stats.rx_horizon_s = time.time() if last_wall_s is None else \
+                        last_stamp_s + (time.time() - last_wall_s)
                     continue
-                if msg.timestamp > stats.rx_horizon_s:
-                    stats.rx_horizon_s = msg.timestamp
+                # The newest frame's stamp, not the largest seen: after a step back of
+                # the receive clock the horizon follows it (a kept maximum would run ahead
+                # of the re-based frames and turn them into late drops).
+                stats.rx_horizon_s = last_stamp_s = msg.timestamp
+                last_wall_s = time.time()
                 if msg.is_error_frame:
                     stats.error_frames += 1
                     stats.bus_state = next_bus_state(stats.bus_state, msg)
