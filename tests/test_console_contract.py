@@ -42,7 +42,7 @@ SENSOR_KEYS = {"rate_hz", "expected_hz", "accepted", "rejected", "lost_frames", 
 BUS_KEYS = {"interface", "channel", "state", "open", "load_pct", "error_frames",
             "frames_rx", "frames_tx", "reopens", "dropped", "last_error"}
 STATUS_KEYS = {"state", "uptime_s", "version", "data_time_s", "worker", "bus",
-               "active_alerts", "console", "front_end"}
+               "active_alerts", "console", "front_end", "state_dir"}
 FRONT_END_KEYS = {"late", "gaps", "resyncs", "clock_steps", "horizon", "two_senders",
                   "two_sender_events"}
 ROW_KEYS = {"t_s", "time", "estimates", "event"}
@@ -161,6 +161,7 @@ def test_read_commands_have_one_shape(term: PtyTerminal):
     status = _json(term, "status")["data"]
     assert set(status) >= STATUS_KEYS
     assert set(status["front_end"]) == FRONT_END_KEYS
+    assert status["state_dir"] == {"write_failures": 0, "set_aside": []}
     est = _json(term, "estimates")["data"]
     assert {"t_s", "ess", "particles", "updated", "parameters"} <= set(est)
     assert set(est["parameters"]) == set(PARAMS)

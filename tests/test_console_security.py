@@ -226,6 +226,9 @@ def test_an_unwritable_audit_log_refuses_login_and_every_write(service: Service,
             assert "refused: the audit log cannot be written" in out, (line, out)
     assert service.policy.snapshot() == before          # nothing was carried out
     assert service.store.write_failures >= failures + 3
+    service.view.publish()                               # the main loop's twice-a-second
+    out = say(console, "status")                         # the failures reach the console
+    assert f"state dir  {service.store.write_failures} WRITE FAILURES since start" in out, out
     stop = threading.Event()
 
     def main_loop() -> None:                             # the service's write executor

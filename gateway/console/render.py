@@ -84,6 +84,11 @@ def status(d: Mapping[str, Any], session_line: str) -> str:
     fe = d.get("front_end")
     if isinstance(fe, Mapping):
         lines.append(f"front end  {front_end(fe)}")
+    sd = d.get("state_dir")
+    if isinstance(sd, Mapping) and (sd.get("write_failures") or sd.get("set_aside")):
+        aside = ", ".join(map(_word, sd.get("set_aside") or [])) or "none"
+        lines.append(f"state dir  {_word(sd.get('write_failures'))} WRITE FAILURES since "
+                     f"start; set aside at start: {aside}")
     lines.append(f"console    {session_line}")
     return "\n".join(lines)
 

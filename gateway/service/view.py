@@ -86,6 +86,12 @@ def front_end_view(fe: FrontEndStats | None) -> dict[str, Any]:
             "two_sender_events": sum(fe.two_sender_events.values())}
 
 
+def state_dir_view(write_failures: int, set_aside: Sequence[str]) -> dict[str, Any]:
+    """The ``status`` reply's ``state_dir``: failed state writes since start and the state
+    files set aside (quarantined) at start (:class:`gateway.sinks.store.StateStore`)."""
+    return {"write_failures": int(write_failures), "set_aside": list(set_aside)}
+
+
 class LogTail(logging.Handler):
     """Keeps the last lines of the log for the console's ``log`` command."""
 
@@ -134,7 +140,9 @@ class ServiceViewImpl:
                                   "rtf": p.rtf if p else None},
                        "bus": {"state": src.bus_state.name, "open": src.bus_open},
                        "active_alerts": len(s.policy.active),
-                       "front_end": front_end_view(p.front.stats() if p else None)},
+                       "front_end": front_end_view(p.front.stats() if p else None),
+                       "state_dir": state_dir_view(s.store.write_failures,
+                                                   s.store.quarantined)},
             "estimates": estimates_view(
                 est, thresholds={n: {"low": pp.low_rel, "high": pp.high_rel}
                                  for n, pp in pol.items()},

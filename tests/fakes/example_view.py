@@ -35,7 +35,7 @@ from gateway.errors import InputError
 from gateway.frontend.stats import FrontEndStats
 from gateway.model.vehicle import PARAM_NAMES
 from gateway.records import Alert, AlertState, Estimate, Severity
-from gateway.service.view import front_end_view
+from gateway.service.view import front_end_view, state_dir_view
 
 
 class ExampleView:
@@ -193,7 +193,8 @@ class ExampleView:
                   "data_time_s": t_now, "reason": "BDN_Lat timed out",
                   "worker": {"alive": True, "restarts": 0, "pid": 4242, "rtf": 3.1},
                   "bus": {"state": "ERROR_ACTIVE", "open": True},
-                  "front_end": front_end_view(_front_end())}
+                  "front_end": front_end_view(_front_end()),
+                  "state_dir": state_dir_view(0, ())}
         return cls(estimate=est, history_alerts=recent, history=history,
                    sensors=sensors, bus=bus, config_text=as_toml(cfg), log=log, status=status,
                    particles=cfg.estimator.particles)
