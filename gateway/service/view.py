@@ -174,9 +174,12 @@ class ServiceViewImpl:
             except queue.Empty:
                 return
             try:
-                reply.put(("ok", action()))
+                result = action()
             except Exception as err:  # noqa: BLE001 - handed back to the console thread
                 reply.put(("err", err))
+                continue
+            self.publish()      # the console's next read shows what it just wrote
+            reply.put(("ok", result))
 
     def _call(self, action: Callable[[], T]) -> T:
         reply: queue.Queue[Any] = queue.Queue(maxsize=1)
