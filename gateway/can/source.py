@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import can
 
+from gateway.reconnect import Backoff
+
 log = logging.getLogger(__name__)
 
 # SocketCAN error-frame classes (linux/can/error.h), as python-can reports them in
@@ -105,9 +107,8 @@ class BusSource:
                  reopen_min_s: float = 0.2, reopen_max_s: float = 10.0) -> None:
         self._open_bus = open_bus
         self._queue: queue.Queue[can.Message] = queue.Queue(maxsize=queue_frames)
-        self._reopen_min_s = reopen_min_s
-        self._reopen_max_s = reopen_max_s
         self._stop = threading.Event()
+        self._backoff = Backoff(reopen_min_s, reopen_max_s, wait=self._stop.wait)
         self._bus: can.BusABC | None = None
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -169,15 +170,15 @@ class BusSource:
                 log.debug("bus shutdown: %s", err)
 
     def _run(self) -> None:
-        backoff = self._reopen_min_s
+        backoff = self._backoff
         while not self._stop.is_set():
             try:
                 bus = self._open_bus()
             except (can.CanError, OSError, ValueError) as err:
                 self.stats.last_error = f"open failed: {err}"
-                log.warning("CAN bus open failed (%s); retrying in %.1f s", err, backoff)
-                self._stop.wait(backoff)
-                backoff = min(backoff * 2, self._reopen_max_s)
+                log.warning("CAN bus open failed (%s); retrying in %.1f s", err,
+                            backoff.delay_s)
+                backoff.pause()
                 continue
             with self._lock:
                 self._bus = bus
@@ -186,14 +187,13 @@ class BusSource:
             log.info("CAN bus open: %s", bus.channel_info)
             try:
                 self._receive(bus)
-                backoff = self._reopen_min_s
+                backoff.reset()
             except (can.CanError, OSError) as err:
                 self.stats.last_error = str(err)
-                log.warning("CAN bus failed (%s); reopening in %.1f s", err, backoff)
+                log.warning("CAN bus failed (%s); reopening in %.1f s", err, backoff.delay_s)
                 self._close_bus()
                 self.stats.reopens += 1
-                self._stop.wait(backoff)
-                backoff = min(backoff * 2, self._reopen_max_s)
+                backoff.pause()
         self._close_bus()
 
     def _receive(self, bus: can.BusABC) -> None:

@@ -26,6 +26,7 @@ from gateway.config import SerialConfig
 from gateway.console.engine import Console
 from gateway.console.session import ConsoleLimits
 from gateway.console.view import ServiceView
+from gateway.reconnect import Backoff
 from gateway.records import Alert
 
 log = logging.getLogger(__name__)
@@ -92,18 +93,14 @@ class ConsolePort:
                  opener: OpenSerial | None = None) -> None:
         if not device:
             raise ValueError("expected a serial device path, got ''")
-        if not 0 < reopen_min_s <= reopen_max_s:
-            raise ValueError(f"expected 0 < reopen_min_s <= reopen_max_s, got "
-                             f"{reopen_min_s}, {reopen_max_s}")
         self.console = console
         self.device = device
         self.baudrate = baudrate
-        self._reopen_min_s = reopen_min_s
-        self._reopen_max_s = reopen_max_s
         self._opener: OpenSerial = opener or (
             lambda dev, baud: open_serial(dev, baud, read_timeout_s=read_timeout_s,
                                           write_timeout_s=write_timeout_s))
         self._stop = threading.Event()
+        self._backoff = Backoff(reopen_min_s, reopen_max_s, wait=self._stop.wait)
         self._thread: threading.Thread | None = None
         self._changed = threading.Condition()
         self._alerts: deque[Alert] = deque(maxlen=MAX_PENDING_ALERTS)
@@ -155,7 +152,7 @@ class ConsolePort:
 
     # -- the thread ------------------------------------------------------------------------
     def _run(self) -> None:
-        backoff = self._reopen_min_s
+        backoff = self._backoff
         failing = 0  # consecutive open failures: log the first, not every retry
         while not self._stop.is_set():
             try:
@@ -167,20 +164,17 @@ class ConsolePort:
                 failing += 1
                 (log.info if failing == 1 else log.debug)(
                     "console port %s not available (%s); retrying every <= %.1f s",
-                    self.device, err, self._reopen_max_s)
-                self._stop.wait(backoff)
-                backoff = min(backoff * 2, self._reopen_max_s)
+                    self.device, err, backoff.max_s)
+                backoff.pause()
                 continue
             if failing:
                 log.info("console port %s available after %d failed opens", self.device,
                          failing)
             failing = 0
-            got_input = self._session(ser)
-            if got_input:
-                backoff = self._reopen_min_s
+            if self._session(ser):   # it read data: the port worked
+                backoff.reset()
             if not self._stop.is_set():
-                self._stop.wait(backoff)
-                backoff = min(backoff * 2, self._reopen_max_s)
+                backoff.pause()
 
     def _session(self, ser: serial.Serial) -> bool:
         """Serve one open port until it is lost or the thread stops; True if it read data."""
