@@ -1,4 +1,4 @@
-"""The frozen records that cross stage boundaries: samples in, estimates and alerts out.
+"""The frozen records and protocols crossing stage boundaries: samples in, estimates out.
 
 Data flows one way::
 
@@ -61,13 +61,42 @@ class Estimate:
 
 
 class Estimator(Protocol):
-    """An online estimator: samples on the grid in, estimates out."""
+    """An online estimator: samples on the grid in, estimates out; its whole state
+    checkpoints to bytes. What the worker process (:mod:`gateway.runtime.worker`) calls;
+    :class:`gateway.estimator.rbpf.RBPF` is one."""
 
     def reset(self, rng: np.random.Generator) -> None:
         """Start again from the prior, drawing from ``rng``."""
 
     def step(self, sample: Sample) -> Estimate:
         """Consume one grid sample and return the posterior after it."""
+
+    def checkpoint(self) -> bytes:
+        """The full state as bytes; :meth:`restore` continues exactly from here."""
+
+    @classmethod
+    def restore(cls, blob: bytes) -> Estimator:
+        """An estimator that continues exactly where :meth:`checkpoint` left off (the
+        worker is given a picklable restorer callable that calls it)."""
+
+    def restart_filters(self) -> None:
+        """After a long gap in the data: restart the state filters, keep what has been
+        learnt about the parameters."""
+
+    def reset_parameter(self, index: int) -> None:
+        """Baseline reset: parameter ``index`` (``PARAM_NAMES`` order) re-learns from
+        its prior, the others keep what they learnt."""
+
+
+class Sink(Protocol):
+    """Where estimates and alert events go (CAN frames, the log, JSON Lines): ``emit``
+    each record in order; ``close`` releases the sink and is idempotent."""
+
+    def emit(self, record: Estimate | Alert) -> None:
+        """Take one estimate or alert event; a sink ignores the kinds it does not carry."""
+
+    def close(self) -> None:
+        """Release what the sink holds; idempotent."""
 
 
 class Quality(enum.IntEnum):

@@ -48,7 +48,8 @@ def refuse_nice(increment: int) -> int:
 
 def _settings(**kwargs: object) -> WorkerSettings:
     return WorkerSettings(builder=build, restorer=restore, output_interval_s=0.0,
-                          checkpoint_interval_s=1e9, **kwargs)  # type: ignore[arg-type]
+                          checkpoint_interval_s=1e9, grid_dt_s=1e-3,
+                          **kwargs)  # type: ignore[arg-type]
 
 
 def _samples(n: int) -> list[Sample]:

@@ -16,7 +16,6 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import can
 
@@ -25,13 +24,13 @@ from gateway.can.codec import Codec
 from gateway.config import Config, EstimatorConfig
 from gateway.estimator.threads import kernel_threads
 from gateway.frontend.chain import FrontEnd
-from gateway.records import Alert, Estimate, Sample
+from gateway.records import Alert, Estimate, Estimator, Sample
 from gateway.runtime.worker import BLOCK_SAMPLES, WorkerLink, WorkerSettings
 
 log = logging.getLogger(__name__)
 
 
-def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Any:
+def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
     """A fresh RBPF from the configuration (module level, so it pickles to the worker)."""
     from gateway.estimator.rbpf import RBPF, RBPFConfig
 
@@ -41,7 +40,7 @@ def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Any:
                            walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3))
 
 
-def restore_estimator(blob: bytes) -> Any:
+def restore_estimator(blob: bytes) -> Estimator:
     """An RBPF restored from checkpoint bytes."""
     from gateway.estimator.rbpf import RBPF
 
@@ -64,7 +63,50 @@ def worker_settings(cfg: Config) -> WorkerSettings:
         restorer=restore_estimator,
         output_interval_s=1.0 / cfg.estimator.output_rate_hz,
         checkpoint_interval_s=cfg.estimator.checkpoint_interval_s,
+        grid_dt_s=1.0 / cfg.resampler.fs_hz,
         warmup=functools.partial(warm_estimator, kernel_threads(cfg.estimator.particles)))
+
+
+@dataclass(frozen=True)
+class SensorStatus:
+    """One sensor message's counters and last values (the console's ``sensors``)."""
+
+    name: str
+    rate_hz: float
+    """Mean accepted-frame rate since the first frame."""
+    expected_hz: float
+    accepted: int
+    rejected: dict[str, int]
+    """Rejected frames by reason (a copy)."""
+    lost_frames: int
+    timeouts: int
+    timed_out: bool
+    last_values: dict[str, float]
+    """Last accepted value of each signal, SI units (a copy)."""
+
+
+@dataclass(frozen=True)
+class PipelineStats:
+    """A snapshot of the pipeline's counters for health, STATUS= and the console, so the
+    service reads one record instead of reaching into the worker and the validator."""
+
+    worker_alive: bool
+    worker_ready: bool
+    """The worker has built (or restored) its estimator."""
+    worker_restarts: int
+    worker_pid: int | None
+    last_seq_done: int
+    """Last grid sample the worker has stepped (-1: none)."""
+    samples_out: int
+    """Grid samples the front end has released so far."""
+    samples_dropped: int
+    """Grid samples dropped at the full worker queue (live)."""
+    priority_error: str | None
+    """None until a worker reported; "" when its priority was lowered; else why not."""
+    frames_rejected: int
+    rtf: float
+    """Estimator real-time factor, data s per wall s (NaN until measured)."""
+    sensors: tuple[SensorStatus, ...]
 
 
 @dataclass
@@ -141,6 +183,25 @@ class Pipeline:
             self.samples_out += 1
             if len(self._block) >= BLOCK_SAMPLES:
                 self.flush()
+
+    def baseline_reset(self, index: int) -> None:
+        """Parameter ``index`` (``PARAM_NAMES`` order) re-learns from its prior, after
+        every sample sent to the worker so far."""
+        self.worker.baseline_reset(index)
+
+    def stats(self) -> PipelineStats:
+        """The counters now, as one frozen record."""
+        w = self.worker.stats
+        return PipelineStats(
+            worker_alive=w.alive, worker_ready=w.ready, worker_restarts=w.restarts,
+            worker_pid=self.worker.pid, last_seq_done=w.last_seq_done,
+            samples_out=self.samples_out, samples_dropped=w.samples_dropped,
+            priority_error=w.priority_error,
+            frames_rejected=self.validator.stats.rejected_total, rtf=self.rtf,
+            sensors=tuple(SensorStatus(name, m.rate_hz(), 1.0 / m.cycle_time_s, m.accepted,
+                                       dict(m.rejected), m.lost_net, m.timeouts, m.timed_out,
+                                       dict(m.last_values))
+                          for name, m in self.validator.messages.items()))
 
     # ----------------------------------------------------------------- output
     def poll(self, timeout_s: float = 0.0) -> Output:

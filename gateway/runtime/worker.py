@@ -1,8 +1,8 @@
 """The estimator worker: the RBPF in its own process, fed through a bounded queue.
 
-Over 400 lines, on purpose for now: the worker's whole lifecycle (spawn, warm spare,
-supervision, replay of unacknowledged blocks after a crash) is one state machine; the
-typed messages (issue 13, later part) will move into their own module.
+Over 400 lines, on purpose: the worker's whole lifecycle (spawn, warm spare,
+supervision, replay of unacknowledged blocks after a crash) is one state machine. The
+messages on its queues are the typed records of :mod:`gateway.runtime.messages`.
 
 The service sends blocks of grid samples; the worker steps the estimator, returns
 estimates at the output rate (data time) and a checkpoint every
@@ -45,12 +45,26 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, assert_never
 
 import numpy as np
 
 from gateway.errors import EstimatorError
-from gateway.records import Estimate, Sample
+from gateway.records import Estimate, Estimator, Sample
+from gateway.runtime.messages import (
+    BaselineReset,
+    CheckpointOut,
+    Control,
+    EstimateOut,
+    Progress,
+    Ready,
+    Reply,
+    Request,
+    SampleBlock,
+    Start,
+    Stop,
+    Stopped,
+)
 
 log = logging.getLogger(__name__)
 
@@ -66,46 +80,18 @@ BLOCK_SAMPLES = 20
 
 
 @dataclass(frozen=True)
-class SampleBlock:
-    """Consecutive grid samples; arrays are time-first: values (n, ny)."""
-
-    seq0: int
-    t_s: np.ndarray
-    values: np.ndarray
-    speed_mps: np.ndarray
-    update: np.ndarray
-
-    @property
-    def last_seq(self) -> int:
-        return self.seq0 + len(self.t_s) - 1
-
-
-@dataclass(frozen=True)
-class Control:
-    """An instruction for the estimator, applied in order between samples.
-
-    ``method`` names an estimator method taking ``arg`` (e.g. ``reset_parameter``).
-    """
-
-    after_seq: int
-    method: str
-    arg: Any
-
-    @property
-    def last_seq(self) -> int:
-        return self.after_seq
-
-
-@dataclass(frozen=True)
 class WorkerSettings:
     """What a worker needs to build (or restore) its estimator and pace its outputs."""
 
-    builder: Callable[[], Any]
+    builder: Callable[[], Estimator]
     """Picklable zero-argument callable returning a fresh estimator."""
-    restorer: Callable[[bytes], Any]
+    restorer: Callable[[bytes], Estimator]
     """Picklable callable turning checkpoint bytes back into an estimator."""
     output_interval_s: float
     checkpoint_interval_s: float
+    grid_dt_s: float
+    """The sample grid's step (1 / ``[resampler] fs_hz``): the time step of the
+    predict-only samples that bridge a gap of dropped blocks."""
     warmup: Callable[[], None] | None = None
     """Picklable; run by a spare worker before it waits (imports, loads compiled code)."""
     lower_priority: Callable[[int], object] = os.nice
@@ -151,10 +137,11 @@ def lower_priority(fn: Callable[[int], object], nice: int = WORKER_NICE) -> str:
 
 def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any,
                  parent_pid: int) -> None:
-    """Process entry point: warm up, wait for ("init", checkpoint, checkpoint_seq), then
-    step, report and checkpoint; exits on a None item.
+    """Process entry point: warm up, wait for :class:`Start`, then step, report and
+    checkpoint; exits on :class:`Stop`.
 
-    ``checkpoint_seq`` is the last sample the checkpoint has seen; older ones are skipped.
+    ``Start.checkpoint_seq`` is the last sample the checkpoint has seen; older ones are
+    skipped.
     """
     for sig in STOP_SIGNALS:              # blocked since the spawn: ignore, then unblock
         signal.signal(sig, signal.SIG_IGN)
@@ -165,65 +152,79 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any,
     priority_error = lower_priority(settings.lower_priority)
     if settings.warmup is not None:
         settings.warmup()
-    init = in_q.get()
-    if init is None:
+    start: Request = in_q.get()
+    if not isinstance(start, Start):     # Stop: a spare that was never started
         return
-    _, checkpoint, checkpoint_seq = init
+    checkpoint = start.checkpoint
     est = settings.restorer(checkpoint) if checkpoint else settings.builder()
-    out_q.put(("ready", checkpoint_seq if checkpoint else -1, priority_error))
+    last_seq = start.checkpoint_seq if checkpoint else -1
+    _put(out_q, Ready(last_seq, priority_error))
     next_out = -math.inf
     next_ckpt = -math.inf
-    last_seq = checkpoint_seq if checkpoint else -1
-    applied: set[tuple[int, str]] = set()
+    applied: set[Control] = set()
     while True:
-        block: SampleBlock | Control | None = in_q.get()
-        if block is None or stop.is_set():     # stop now: the backlog is not worked off
-            out_q.put(("checkpoint", last_seq, est.checkpoint()))
-            out_q.put(("stopped", last_seq, None))
-            return
-        if isinstance(block, Control):
-            key = (block.after_seq, block.method)
-            if block.after_seq >= last_seq and key not in applied:
-                getattr(est, block.method)(block.arg)
-                applied.add(key)
-            continue
-        if last_seq >= 0 and block.seq0 > last_seq + 1:
-            _bridge_gap(est, block, block.seq0 - last_seq - 1)
-            last_seq = block.seq0 - 1
-        for i in range(len(block.t_s)):
-            seq = block.seq0 + i
-            if seq <= last_seq:
-                continue
-            t = float(block.t_s[i])
-            e = est.step(Sample(t, block.values[i], float(block.speed_mps[i]),
-                                bool(block.update[i])))
-            last_seq = seq
-            if t >= next_out:
-                out_q.put(("estimate", seq, e))
-                next_out = t + settings.output_interval_s
-            if t >= next_ckpt:
-                if math.isfinite(next_ckpt):
-                    out_q.put(("checkpoint", seq, est.checkpoint()))
-                next_ckpt = t + settings.checkpoint_interval_s
-        out_q.put(("progress", last_seq, None))
+        item: Request = in_q.get()
+        if stop.is_set():                # stop now: the backlog is not worked off
+            item = Stop()
+        match item:
+            case Stop():
+                _put(out_q, CheckpointOut(last_seq, est.checkpoint()))
+                _put(out_q, Stopped(last_seq))
+                return
+            case BaselineReset(after_seq=after_seq, index=index):
+                # replayed into a restarted worker until a checkpoint covers it: apply once
+                if after_seq >= last_seq and item not in applied:
+                    est.reset_parameter(index)
+                    applied.add(item)
+            case SampleBlock():
+                block = item
+                if last_seq >= 0 and block.seq0 > last_seq + 1:
+                    _bridge_gap(est, block, block.seq0 - last_seq - 1, settings.grid_dt_s)
+                    last_seq = block.seq0 - 1
+                for i in range(len(block.t_s)):
+                    seq = block.seq0 + i
+                    if seq <= last_seq:
+                        continue
+                    t = float(block.t_s[i])
+                    e = est.step(Sample(t, block.values[i], float(block.speed_mps[i]),
+                                        bool(block.update[i])))
+                    last_seq = seq
+                    if t >= next_out:
+                        _put(out_q, EstimateOut(seq, e))
+                        next_out = t + settings.output_interval_s
+                    if t >= next_ckpt:
+                        if math.isfinite(next_ckpt):
+                            _put(out_q, CheckpointOut(seq, est.checkpoint()))
+                        next_ckpt = t + settings.checkpoint_interval_s
+                _put(out_q, Progress(last_seq))
+            case Start():
+                raise EstimatorError(f"expected one Start per worker, got another "
+                                     f"after sample {last_seq}")
+            case _:
+                assert_never(item)
+
+
+def _put(out_q: Any, reply: Reply) -> None:
+    """One typed reply to the parent."""
+    out_q.put(reply)
 
 
 MAX_PREDICT_GAP = 500
 """Longest gap (samples) bridged by predict-only steps; longer ones restart the filters."""
 
 
-def _bridge_gap(est: Any, block: SampleBlock, missing: int) -> None:
+def _bridge_gap(est: Estimator, block: SampleBlock, missing: int, grid_dt_s: float) -> None:
     """Samples that never reached the worker (dropped blocks): predict through a short
-    gap; after a long one restart the Kalman filters (theta particles kept), if the
-    estimator can, since predicting through seconds would only fall further behind."""
-    restart = getattr(est, "restart_filters", None)
-    if missing > MAX_PREDICT_GAP and restart is not None:
-        restart()
+    gap, one step of ``grid_dt_s`` per missing sample; after a long one restart the
+    state filters (parameter particles kept), since predicting through seconds would
+    only fall further behind."""
+    if missing > MAX_PREDICT_GAP:
+        est.restart_filters()
         return
-    dt = float(block.t_s[1] - block.t_s[0]) if len(block.t_s) > 1 else 1e-3
     nan = np.full(block.values.shape[1], np.nan)
     for j in range(missing, 0, -1):
-        est.step(Sample(float(block.t_s[0]) - j * dt, nan, float(block.speed_mps[0]), False))
+        est.step(Sample(float(block.t_s[0]) - j * grid_dt_s, nan,
+                        float(block.speed_mps[0]), False))
 
 
 @dataclass
@@ -303,7 +304,7 @@ class WorkerLink:
         if spare is None or not spare[0].is_alive():
             spare = self._spawn()
         self._proc, self._in_q, self._out_q = spare
-        self._in_q.put(("init", self._checkpoint, self.stats.last_checkpoint_seq))
+        self._in_q.put(Start(self._checkpoint, self.stats.last_checkpoint_seq))
         self.stats.alive = True
         self.stats.ready = False
         if self._keep_spare:
@@ -341,10 +342,14 @@ class WorkerLink:
         self._pending.append(block)
         self.stats.samples_sent += len(samples)
 
-    def control(self, method: str, arg: Any) -> None:
-        """Apply ``estimator.method(arg)`` after every sample sent so far (kept for replay
-        into a restarted worker until a checkpoint covers it)."""
-        item = Control(self._seq - 1, method, arg)
+    def baseline_reset(self, index: int) -> None:
+        """Parameter ``index`` re-learns from its prior, after every sample sent so far
+        (:meth:`gateway.records.Estimator.reset_parameter`)."""
+        self._control(BaselineReset(self._seq - 1, index))
+
+    def _control(self, item: BaselineReset) -> None:
+        """Queue an instruction; kept for replay into a restarted worker until a
+        checkpoint covers it."""
         self._in_q.put(item)
         self._pending.append(item)
 
@@ -356,20 +361,25 @@ class WorkerLink:
         wait = timeout_s
         while True:
             try:
-                kind, seq, payload = self._out_q.get(timeout=wait) if wait > 0 else \
+                reply: Reply = self._out_q.get(timeout=wait) if wait > 0 else \
                     self._out_q.get_nowait()
             except queue.Empty:
                 return out
             wait = 0.0
-            self.stats.last_seq_done = max(self.stats.last_seq_done, seq)
-            if kind == "estimate":
-                out.append(payload)
-                self.stats.estimates += 1
-            elif kind == "checkpoint":
-                self._checkpointed(seq, payload)
-            elif kind == "ready":
-                self.stats.ready = True
-                self._priority_reported(payload)
+            self.stats.last_seq_done = max(self.stats.last_seq_done, reply.seq)
+            match reply:
+                case EstimateOut(estimate=est):
+                    out.append(est)
+                    self.stats.estimates += 1
+                case CheckpointOut(seq=seq, blob=blob):
+                    self._checkpointed(seq, blob)
+                case Ready(priority_error=error):
+                    self.stats.ready = True
+                    self._priority_reported(error)
+                case Progress() | Stopped():
+                    pass
+                case _:
+                    assert_never(reply)
 
     def _priority_reported(self, error: str | None) -> None:
         if error is None:
@@ -437,15 +447,20 @@ class WorkerLink:
         if not self._blocking:
             self._stop.set()                     # live: checkpoint now, skip the backlog
         try:
-            self._in_q.put(None, timeout=timeout_s)
+            self._in_q.put(Stop(), timeout=timeout_s)
             while True:
-                kind, seq, payload = self._out_q.get(timeout=timeout_s)
-                if kind == "estimate":
-                    out.append(payload)
-                elif kind == "checkpoint":
-                    self._checkpointed(seq, payload)
-                elif kind == "stopped":
-                    break
+                reply: Reply = self._out_q.get(timeout=timeout_s)
+                match reply:
+                    case EstimateOut(estimate=est):
+                        out.append(est)
+                    case CheckpointOut(seq=seq, blob=blob):
+                        self._checkpointed(seq, blob)
+                    case Stopped():
+                        break
+                    case Ready() | Progress():
+                        pass
+                    case _:
+                        assert_never(reply)
         except (queue.Empty, queue.Full, OSError, ValueError) as err:
             log.warning("worker did not stop cleanly: %s", err)
         self._proc.join(timeout=timeout_s)
@@ -460,7 +475,7 @@ class WorkerLink:
             proc, in_q, out_q = self._spare
             self._spare = None
             with contextlib.suppress(queue.Full, OSError, ValueError):
-                in_q.put_nowait(None)
+                in_q.put_nowait(Stop())
             proc.join(timeout=timeout_s)
             if proc.is_alive():
                 proc.kill()

@@ -35,7 +35,7 @@ from gateway.can.source import BusSource
 from gateway.config import Config, load_config, with_overrides
 from gateway.errors import ConfigError
 from gateway.model.vehicle import PARAM_NAMES
-from gateway.records import Alert, Estimate
+from gateway.records import Alert, Estimate, Sink
 from gateway.runtime.pipeline import Pipeline
 from gateway.service.sdnotify import Notifier
 from gateway.service.view import ServiceViewImpl
@@ -113,12 +113,15 @@ class Service:
         self.can_sink = CanSink(self.codec, self.source.send, cfg.estimator.particles,
                                 estimate_rate_hz=cfg.output.estimate_rate_hz)
         self.log_sink = LogSink()
+        self.sinks: tuple[Sink, ...] = (self.can_sink, self.log_sink)
+        """Every estimate and alert event goes to each of these, in order."""
         self.policy, history = restore_policy(self.store)   # never raises for bad state
         self.recent_alerts: collections.deque[Alert] = collections.deque(history[-50:],
                                                                           maxlen=50)
         self.pipeline: Pipeline | None = None
         self._old_handlers: dict[int, Any] = {}
         self.view = ServiceViewImpl(self)
+        self._log_installed = False
         self._load_mark = (time.monotonic(), 0)
         self._load_pct = 0.0
         self._resyncs_reported = 0
@@ -131,13 +134,14 @@ class Service:
         self.store.save_policy(self.policy.snapshot())
 
     def _on_estimate(self, est: Estimate) -> None:
-        self.can_sink.emit_estimate(est)
+        for sink in self.sinks:
+            sink.emit(est)
         self.store.record_estimate(est)
 
     def on_alert(self, alert: Alert) -> None:
         """Every alert event, from the policy or a console command: to all sinks."""
-        self.can_sink.emit_alert(alert)
-        self.log_sink.emit_alert(alert)
+        for sink in self.sinks:
+            sink.emit(alert)
         self.store.append_alert(alert)
         self.recent_alerts.append(alert)
         self.store.save_policy(self.policy.snapshot())
@@ -219,20 +223,20 @@ class Service:
     def health(self) -> Health:
         p = self.pipeline
         src = self.source.stats
-        worker = p.worker.stats if p else None
-        if p is None or p.last_estimate is None:
+        ps = p.stats() if p is not None else None
+        if p is None or ps is None or p.last_estimate is None:
             state = "Starting"
-        elif not src.bus_open or (worker is not None and not worker.alive):
+        elif not src.bus_open or not ps.worker_alive:
             state = "Fault"
-        elif any(m.timed_out for m in p.validator.messages.values()):
+        elif any(m.timed_out for m in ps.sensors):
             state = "Degraded"
         else:
             state = "Running"
         dropped = src.dropped_queue_full + src.dropped_kernel + \
-            (worker.samples_dropped if worker else 0)
+            (ps.samples_dropped if ps else 0)
         return Health(state, int(src.bus_state), len(self.policy.active),
-                      src.frames_rx, p.validator.stats.rejected_total if p else 0, dropped,
-                      p.rtf if p else math.nan, self.health_flags())
+                      src.frames_rx, ps.frames_rejected if ps else 0, dropped,
+                      ps.rtf if ps else math.nan, self.health_flags())
 
     def health_flags(self) -> HealthFlags:
         """The faults the service runs on with, for GW_HealthFlags, STATUS= and the console."""
@@ -244,7 +248,7 @@ class Service:
             late, two_senders = fe.late_total, bool(fe.two_senders)
             resyncs = fe.resyncs + fe.clock_steps
             gaps = fe.gap_points
-        priority_error = p.worker.stats.priority_error if p is not None else None
+        priority_error = p.stats().priority_error if p is not None else None
         return HealthFlags(
             state_quarantined=bool(self.store.quarantined),
             persistence_failing=self.store.write_failures > 0,
@@ -258,12 +262,13 @@ class Service:
         p = self.pipeline
         if p is None:
             return False
-        w = p.worker.stats
-        backlog = p.samples_out - 1 - w.last_seq_done
+        ps = p.stats()
+        backlog = ps.samples_out - 1 - ps.last_seq_done
         now = time.monotonic()
-        if w.last_seq_done != last_done[0]:
-            last_done[0], last_done[1] = w.last_seq_done, now
-        return w.alive and (backlog <= 2 * 20 or now - last_done[1] < PROGRESS_TIMEOUT_S)
+        if ps.last_seq_done != last_done[0]:
+            last_done[0], last_done[1] = ps.last_seq_done, now
+        return ps.worker_alive and (backlog <= 2 * 20
+                                    or now - last_done[1] < PROGRESS_TIMEOUT_S)
 
     def run(self) -> int:
         """Main loop; returns 0 after a clean stop."""
@@ -271,6 +276,7 @@ class Service:
         blob = ck.blob if ck is not None else None
         if blob is not None:
             log.info("resuming the estimator from the persisted checkpoint")
+        self.install_log_tail()
         self.source.start()
         self.pipeline = Pipeline(self.cfg, self.codec, policy=self.policy, checkpoint=blob,
                                  on_checkpoint=self._on_checkpoint,
@@ -290,11 +296,11 @@ class Service:
         p = self.pipeline
         try:
             while not self.flags.stop:
-                if not ready and self.source.opened.wait(0.05) and p.worker.stats.ready:
+                if not ready and self.source.opened.wait(0.05) and p.stats().worker_ready:
                     ready = True
                     self.notifier.ready("pipeline up: bus open, estimator running")
                     log.info("pipeline up")
-                elif not ready and not p.worker.stats.ready and \
+                elif not ready and not p.stats().worker_ready and \
                         started + STARTUP_EXTEND_LIMIT_S > time.monotonic() >= next_extend:
                     next_extend = time.monotonic() + STARTUP_EXTEND_EVERY_S
                     self.notifier.extend_timeout(STARTUP_EXTEND_S, "starting: estimator "
@@ -335,7 +341,7 @@ class Service:
                     next_publish = now + 0.5
                     self._count_load(now)
                     self.view.publish()
-                if now >= next_status and (ready or p.worker.stats.ready):
+                if now >= next_status and (ready or p.stats().worker_ready):
                     # While the worker warms up, the extension's STATUS says so: not
                     # overwritten by "waiting for estimates" (systemctl status shows it).
                     next_status = now + 2.0
@@ -356,11 +362,31 @@ class Service:
             self.pipeline.close()
             self.store.save_policy(self.policy.snapshot())
         self.source.close()
+        for sink in self.sinks:
+            sink.close()
         self.store.close()
         self.notifier.close()
-        self.view.close()
+        self.remove_log_tail()
         if self._old_handlers and threading.current_thread() is threading.main_thread():
             self._restore_signal_handlers()
+
+    def install_log_tail(self) -> None:
+        """Keep the last log lines for the console's ``log`` (a root handler, installed
+        once when the service starts, removed by :meth:`close`); the console shows INFO
+        and up, so the ``gateway`` logger passes INFO."""
+        if self._log_installed:
+            return
+        logging.getLogger().addHandler(self.view.log_tail)
+        ours = logging.getLogger("gateway")
+        if ours.getEffectiveLevel() > logging.INFO:
+            ours.setLevel(logging.INFO)
+        self._log_installed = True
+
+    def remove_log_tail(self) -> None:
+        """Undo :meth:`install_log_tail`; idempotent."""
+        if self._log_installed:
+            logging.getLogger().removeHandler(self.view.log_tail)
+            self._log_installed = False
 
     def data_time_s(self) -> float:
         """Data time of the latest estimate (NaN before the first)."""

@@ -117,10 +117,7 @@ class ServiceViewImpl:
         self._requests: queue.Queue[tuple[Callable[[], Any], queue.Queue[Any]]] = \
             queue.Queue()
         self.log_tail = LogTail()
-        logging.getLogger().addHandler(self.log_tail)
-        ours = logging.getLogger("gateway")
-        if ours.getEffectiveLevel() > logging.INFO:   # the console shows INFO and up
-            ours.setLevel(logging.INFO)
+        """Filled once the service installs it as a log handler (at its start)."""
 
     # ------------------------------------------------------ main-loop side
     def publish(self) -> None:
@@ -130,14 +127,14 @@ class ServiceViewImpl:
         pol = s.policy.config.params
         est = p.last_estimate if p else None
         src = s.source.stats
-        worker = p.worker.stats if p else None
+        ps = p.stats() if p is not None else None
         snap = {
             "status": {"state": s.health().gw_state, "uptime_s": round(s.uptime_s, 1),
                        "version": __version__, "data_time_s": est.t_s if est else None,
-                       "worker": {"alive": worker.alive if worker else False,
-                                  "restarts": worker.restarts if worker else 0,
-                                  "pid": p.worker.pid if p else None,
-                                  "rtf": p.rtf if p else None},
+                       "worker": {"alive": ps.worker_alive if ps else False,
+                                  "restarts": ps.worker_restarts if ps else 0,
+                                  "pid": ps.worker_pid if ps else None,
+                                  "rtf": ps.rtf if ps else None},
                        "bus": {"state": src.bus_state.name, "open": src.bus_open},
                        "active_alerts": len(s.policy.active),
                        "front_end": front_end_view(p.front.stats() if p else None),
@@ -148,12 +145,12 @@ class ServiceViewImpl:
                                  for n, pp in pol.items()},
                 active=s.policy.active, particles=s.cfg.estimator.particles,
                 max_std_rel={n: pp.max_std_rel for n, pp in pol.items()}),
-            "sensors": {} if p is None else {
-                name: {"rate_hz": round(m.rate_hz(), 1), "expected_hz": 1.0 / m.cycle_time_s,
-                       "accepted": m.accepted, "rejected": dict(m.rejected),
-                       "lost_frames": m.lost_net, "timeouts": m.timeouts,
-                       "timed_out": m.timed_out, "last_values": dict(m.last_values)}
-                for name, m in p.validator.messages.items()},
+            "sensors": {} if ps is None else {
+                m.name: {"rate_hz": round(m.rate_hz, 1), "expected_hz": m.expected_hz,
+                         "accepted": m.accepted, "rejected": m.rejected,
+                         "lost_frames": m.lost_frames, "timeouts": m.timeouts,
+                         "timed_out": m.timed_out, "last_values": m.last_values}
+                for m in ps.sensors},
             "bus": {"interface": s.cfg.bus.interface, "channel": s.cfg.bus.channel,
                     "state": src.bus_state.name, "open": src.bus_open,
                     "load_pct": s.bus_load_pct(), "error_frames": src.error_frames,
@@ -256,7 +253,7 @@ class ServiceViewImpl:
             for alert in cleared:
                 s.on_alert(alert)
             if s.pipeline is not None:
-                s.pipeline.worker.control("reset_parameter", PARAM_NAMES.index(component))
+                s.pipeline.baseline_reset(PARAM_NAMES.index(component))
             s.store.append_baseline(component, t, note="baseline reset from the console")
             s.store.save_policy(s.policy.snapshot())
             return BaselineResult(component, t, tuple(cleared))
@@ -294,6 +291,3 @@ class ServiceViewImpl:
     def save_lockout(self, state: LockoutState) -> bool:
         return self._service.store.save_console_lockout(
             {"failures": state.failures, "locked_until_unix_s": state.locked_until_unix_s})
-
-    def close(self) -> None:
-        logging.getLogger().removeHandler(self.log_tail)

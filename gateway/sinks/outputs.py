@@ -1,8 +1,10 @@
 """Output sinks: our CAN frames (estimates, alerts, health, E2E-protected) and the log.
 
-Each sink has ``emit_*`` methods and ``close()``. The CAN sink encodes with the codec,
-keeps one alive counter per message and hands frames to a ``send`` callable (the bus
-source in the service, a list in tests and replay). It sends at most
+Each sink is a :class:`gateway.records.Sink`: ``emit(record)`` takes an estimate or an
+alert event (dispatched on its type to ``emit_estimate``/``emit_alert``), ``close()``
+releases it. The CAN sink also sends the health frames (``emit_health``). It encodes
+with the codec, keeps one alive counter per message and hands frames to a ``send``
+callable (the bus source in the service, a list in tests and replay). It sends at most
 ``estimate_rate_hz`` estimate frame sets per second of *data* time (``Estimate.t_s``):
 the worker makes estimates at ``[estimator] output_rate_hz``, the sink only drops.
 """
@@ -13,6 +15,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import assert_never
 
 import can
 
@@ -153,6 +156,16 @@ class CanSink:
         else:
             self.failed += 1
 
+    def emit(self, record: Estimate | Alert) -> None:
+        """An estimate's or an alert event's frames (:class:`gateway.records.Sink`)."""
+        match record:
+            case Estimate():
+                self.emit_estimate(record)
+            case Alert():
+                self.emit_alert(record)
+            case _:
+                assert_never(record)
+
     def emit_estimate(self, est: Estimate) -> None:
         """One frame per parameter: mean, std, status and ESS %; nothing when ``est.t_s``
         comes before the next set is due (``_estimate_due``)."""
@@ -200,7 +213,18 @@ class CanSink:
 
 
 class LogSink:
-    """Alerts to the log (journald picks up stderr under systemd)."""
+    """Alerts to the log (journald picks up stderr under systemd); estimates are not
+    logged (the CAN frames and the state directory carry them)."""
+
+    def emit(self, record: Estimate | Alert) -> None:
+        """Log an alert event (:class:`gateway.records.Sink`); ignore an estimate."""
+        match record:
+            case Alert():
+                self.emit_alert(record)
+            case Estimate():
+                pass
+            case _:
+                assert_never(record)
 
     def emit_alert(self, alert: Alert) -> None:
         level = {Severity.ADVISORY: logging.INFO, Severity.WARNING: logging.WARNING,
