@@ -1,8 +1,8 @@
 """The alert policy: turns a stream of estimates into alert events (raise, escalate, clear, ack).
 
 Over 400 lines: thresholds, hold times, hysteresis, baselines and lifecycle act on one
-policy state. Candidate split (issue 13, later): the alert codes and the one
-threshold judge shared with console/view.py.
+policy state. The threshold judge shared with the console is :mod:`gateway.alerts.judge`;
+alerts in the snapshot take their JSON form from :mod:`gateway.jsonform`.
 
 Core module: no I/O, no clock. Time is the estimates' data time ``t_s``; the only state
 is :class:`AlertPolicy`'s, and :meth:`AlertPolicy.snapshot` / :meth:`AlertPolicy.restore`
@@ -22,6 +22,8 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from gateway import jsonform
+from gateway.alerts import judge
 from gateway.errors import ConfigError, InputError, StateError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
 from gateway.records import Alert, AlertState, Estimate, Severity
@@ -36,7 +38,10 @@ bus: GW_Alert_Param and GW_Alert_ValueRel NotAvailable), side :data:`SENDERS_SID
 SENDERS_SIDE = "senders"
 """The ``side`` :func:`decode_code` gives :data:`CODE_TWO_SENDERS`."""
 NODE_PREFIX = "node:"
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2
+"""2: alerts in the snapshot in :func:`gateway.jsonform.alert_json` form (severity and
+state by name, NaN as null); 1 (still read): severity and state as integers."""
+SNAPSHOT_VERSIONS_READ = (1, 2)
 SEQ_BLOCK = 16
 """Seqs reserved durably at a time (``reserve``): a restart skips at most this many."""
 Levels = tuple[float | None, float | None, float | None]
@@ -173,14 +178,13 @@ class _Track:
         self.release_since = None
 
 
-def _beyond(side: str, rel: float, threshold: float) -> bool:
-    return rel <= threshold if side == "low" else rel >= threshold
-
-
-def _alert_from_json(d: Any) -> Alert:
+def _alert_from_json(d: Any, version: int) -> Alert:
+    """An alert of a snapshot; version 1 wrote severity and state as integers."""
     try:
-        return Alert(**{**d, "severity": Severity(d["severity"]),
-                        "state": AlertState(d["state"])})
+        if version == 1:
+            d = {**d, "severity": Severity(d["severity"]).name,
+                 "state": AlertState(d["state"]).name}
+        return jsonform.alert_from_json(d)
     except (KeyError, TypeError, ValueError) as err:
         raise StateError(f"expected an alert object, got {d!r} ({err})") from err
 
@@ -286,16 +290,16 @@ class AlertPolicy:
         if tr.last_t_s is None or not t_s >= tr.last_t_s or t_s - tr.last_t_s > cfg.max_gap_s:
             tr.reset_timers()                       # first estimate, gap or time went back
         tr.last_t_s = t_s
-        rel = mean / pp.nominal
-        std_rel = std / max(abs(mean), pp.nominal)
-        if not (math.isfinite(rel) and math.isfinite(std_rel) and std_rel <= pp.max_std_rel):
+        rel = judge.value_rel(mean, pp.nominal)
+        std_rel = judge.sigma_rel(mean, std, pp.nominal)
+        if rel is None or not judge.judgeable(rel, std_rel, pp.max_std_rel):
             tr.reset_timers()                       # gate closed: no judgement at all
             return []
         tr.value_rel = rel
         sev, side = 0, ""                           # highest level held for raise_hold_s
         for s in SIDES:
             for k, threshold in enumerate(pp.levels(s)):
-                if threshold is None or not _beyond(s, rel, threshold):
+                if threshold is None or not judge.beyond(s, rel, threshold):
                     tr.since[s][k] = None
                     continue
                 start = tr.since[s][k]
@@ -318,7 +322,7 @@ class AlertPolicy:
         ``clear_hold_s``; the new level is the highest one still held with hysteresis."""
         margin = pp.hysteresis_rel if tr.side == "low" else -pp.hysteresis_rel
         hold = max((k + 1 for k, threshold in enumerate(pp.levels(tr.side))
-                    if threshold is not None and _beyond(tr.side, rel, threshold + margin)),
+                    if threshold is not None and judge.beyond(tr.side, rel, threshold + margin)),
                    default=0)
         if hold >= tr.severity:
             tr.release_since = None
@@ -459,11 +463,12 @@ class AlertPolicy:
 
     # -- checkpoint ------------------------------------------------------------------
     def snapshot(self) -> dict[str, Any]:
-        """The full policy state as a JSON-compatible dict (a NaN value_rel as None)."""
-        params = {name: dataclasses.asdict(tr) for name, tr in self._tracks.items()}
-        for d in params.values():
-            d["value_rel"] = d["value_rel"] if math.isfinite(d["value_rel"]) else None
-        senders = {p: [raised, {**dataclasses.asdict(last), "value_rel": None}]
+        """The full policy state as a JSON-compatible dict (alerts in their
+        :func:`gateway.jsonform.alert_json` form; NaN as None)."""
+        params = {name: {**dataclasses.asdict(tr), "value_rel": jsonform.finite(tr.value_rel),
+                         "last": None if tr.last is None else jsonform.alert_json(tr.last)}
+                  for name, tr in self._tracks.items()}
+        senders = {p: [raised, jsonform.alert_json(last)]
                    for p, (raised, last) in self._senders.items()}
         return {"version": SNAPSHOT_VERSION, "next_seq": self._next_seq,
                 "overrides": [list(o) for o in self._overrides], "params": params,
@@ -489,7 +494,8 @@ class AlertPolicy:
                 policy._load(snapshot)
             except (KeyError, TypeError, ValueError, AttributeError, RecursionError) as err:
                 raise StateError(f"expected an alert-policy snapshot version "
-                                 f"{SNAPSHOT_VERSION}, got a malformed one ({err!r})") from err
+                                 f"{SNAPSHOT_VERSIONS_READ}, got a malformed one "
+                                 f"({err!r})") from err
         for alert in sorted(history, key=lambda a: a.seq):
             if alert.seq >= policy._next_seq:
                 try:
@@ -507,8 +513,9 @@ class AlertPolicy:
         return policy
 
     def _load(self, snap: Mapping[str, Any]) -> None:
-        if snap["version"] != SNAPSHOT_VERSION:
-            raise ValueError(f"version {snap['version']!r}")
+        version = snap["version"]
+        if isinstance(version, bool) or version not in SNAPSHOT_VERSIONS_READ:
+            raise ValueError(f"version {version!r}")
         for parameter, sev, side, value in snap["overrides"]:
             try:
                 self.set_threshold(parameter, sev, value, side)
@@ -520,14 +527,15 @@ class AlertPolicy:
         self._next_seq = next_seq
         for name, d in snap["params"].items():
             if name in self._tracks:
-                last = _alert_from_json(d["last"]) if d["last"] is not None else None
+                last = (_alert_from_json(d["last"], version) if d["last"] is not None
+                        else None)
                 since = {side: [None if x is None else float(x) for x in d["since"][side]]
                          for side in SIDES}
                 value_rel = math.nan if d["value_rel"] is None else float(d["value_rel"])
                 self._tracks[name] = _Track(**{**d, "last": last, "since": since,
                                                "value_rel": value_rel})
         for param, (raised, d) in snap.get("senders", {}).items():
-            last = _alert_from_json({**d, "value_rel": math.nan})
+            last = _alert_from_json({**d, "value_rel": None}, version)
             if not (isinstance(raised, int) and last.code == CODE_TWO_SENDERS
                     and param.startswith(NODE_PREFIX)):
                 raise ValueError(f"expected a two-sender alert, got {param!r}: {d!r}")

@@ -7,7 +7,9 @@ renders them defensively (missing keys show as "-"). The write side returns type
 frozen results (:class:`AckResult`, :class:`BaselineResult`, :class:`ThresholdResult`),
 each with its JSON form. The helpers here (:func:`estimates_view`, :func:`alert_view`,
 :func:`history_row`, :func:`resolve_parameter`) build the read shapes from the shared
-records, for the service and for the test doubles alike.
+records, for the service and for the test doubles alike: alerts and estimates in the one
+JSON form of :mod:`gateway.jsonform`, relative values and the confidence gate from the
+one judge, :mod:`gateway.alerts.judge`.
 
 Every method is called from the console's port thread: the service must make them
 thread-safe. Write methods are called only after login and a successful audit of the
@@ -18,14 +20,15 @@ a :class:`Severity`), and raise :class:`gateway.errors.InputError` ("expected ..
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from gateway.alerts import judge
 from gateway.alerts.policy import Levels
 from gateway.console.session import LockoutState
 from gateway.errors import InputError
+from gateway.jsonform import alert_json, estimate_json, finite, params_json
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
 from gateway.records import Alert, Estimate, Severity
 
@@ -51,7 +54,7 @@ class BaselineResult:
     estimator: str = "re-learning this parameter from the prior"
 
     def to_json(self) -> dict[str, Any]:
-        return {"parameter": self.parameter, "t_s": _finite(self.t_s),
+        return {"parameter": self.parameter, "t_s": finite(self.t_s),
                 "events": [alert_view(a) for a in self.cleared], "estimator": self.estimator}
 
 
@@ -68,9 +71,9 @@ class ThresholdResult:
 
     def to_json(self) -> dict[str, Any]:
         return {"parameter": self.parameter, "side": self.side,
-                "severity": self.severity.name, "value_rel": _finite(self.value_rel),
-                "thresholds": {"low": [_finite(v) for v in self.low_rel],
-                               "high": [_finite(v) for v in self.high_rel]}}
+                "severity": self.severity.name, "value_rel": finite(self.value_rel),
+                "thresholds": {"low": [finite(v) for v in self.low_rel],
+                               "high": [finite(v) for v in self.high_rel]}}
 
 
 class ServiceView(Protocol):
@@ -172,16 +175,9 @@ def resolve_parameter(text: str) -> str:
     raise InputError(f"expected a component or parameter ({choices}), got {text!r}")
 
 
-def _finite(x: float | None) -> float | None:
-    return float(x) if x is not None and math.isfinite(x) else None
 
-
-def alert_view(alert: Alert) -> dict[str, Any]:
-    """An :class:`Alert` as a JSON-compatible dict (enum names, non-finite as None)."""
-    return {"seq": alert.seq, "t_s": _finite(alert.t_s), "parameter": alert.parameter,
-            "severity": alert.severity.name, "state": alert.state.name,
-            "code": alert.code, "value_rel": _finite(alert.value_rel),
-            "message": alert.message}
+alert_view = alert_json
+"""An :class:`Alert` as the console shows it in JSON: exactly the one alert form."""
 
 
 def estimates_view(est: Estimate | None, *,
@@ -197,28 +193,35 @@ def estimates_view(est: Estimate | None, *,
     "confident"}}}``. ``status`` is the active alert's severity (the policy's judgement
     with hold times), else "OK"; ``confident`` is False while ``sigma_rel`` is above the
     policy's confidence gate ``max_std_rel``. ``est`` None gives no parameters.
+
+    Built from the one estimate form (:func:`gateway.jsonform.estimate_json`: ``t_s``,
+    ``ess``, ``updated``, each parameter's ``mean`` and ``std``) plus, per parameter, what
+    the judge (:mod:`gateway.alerts.judge`) makes of it; it differs from that form because
+    it is the console's documented reply (docs/console.md), made for a fitter.
     """
     out: dict[str, Any] = {"t_s": None, "ess": None, "particles": particles,
                            "updated": None, "parameters": {}}
     if est is None:
         return out
-    out.update(t_s=_finite(est.t_s), ess=_finite(est.ess), updated=est.updated)
+    form = estimate_json(est)                  # the one estimate form, then the judge's view
+    out.update(t_s=form["t_s"], ess=form["ess"], updated=form["updated"])
     by_param = {a.parameter: a for a in active}
     for name, mean, std in zip(est.names, est.mean, est.std, strict=True):
         nom = nominal.get(name)
-        rel = mean / nom if nom else None
-        sigma_rel = std / max(abs(mean), nom or 0.0) if (mean or nom) else None
+        rel = judge.value_rel(mean, nom)
+        sigma_rel = judge.sigma_rel(mean, std, nom)
         levels = thresholds.get(name, {})
         alert = by_param.get(name)
         gate = (max_std_rel or {}).get(name)
         out["parameters"][name] = {
-            "mean": _finite(mean), "std": _finite(std), "nominal": nom,
-            "value_rel": _finite(rel), "sigma_rel": _finite(sigma_rel),
-            "thresholds": {side: [_finite(t) for t in lv] for side, lv in levels.items()},
+            **form["params"][name], "nominal": nom,
+            "value_rel": finite(rel), "sigma_rel": finite(sigma_rel),
+            "thresholds": {side: [finite(t) for t in lv] for side, lv in levels.items()},
             "status": alert.severity.name if alert else "OK",
             "alert_state": alert.state.name if alert else None,
             "alert_seq": alert.seq if alert else None,
-            "confident": None if gate is None or sigma_rel is None else sigma_rel <= gate,
+            "confident": (None if gate is None or sigma_rel is None
+                          else judge.confident(sigma_rel, gate)),
         }
     return out
 
@@ -227,7 +230,5 @@ def history_row(t_s: float, est: Estimate | None = None, *, event: str | None = 
                 time: str | None = None) -> dict[str, Any]:
     """One ``history()`` row: ``{"t_s", "time" (ISO wall time or None), "estimates":
     {name: {"mean", "std"}}, "event" (e.g. "baseline reset csy_ns_per_m") or None}``."""
-    ests = {} if est is None else {
-        n: {"mean": _finite(m), "std": _finite(s)}
-        for n, m, s in zip(est.names, est.mean, est.std, strict=True)}
-    return {"t_s": _finite(t_s), "time": time, "estimates": ests, "event": event}
+    ests = {} if est is None else params_json(est)
+    return {"t_s": finite(t_s), "time": time, "estimates": ests, "event": event}

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from gateway import jsonform
 from gateway.alerts.policy import AlertPolicy
 from gateway.can.codec import default_codec
 from gateway.can.logs import read_log
@@ -29,25 +29,40 @@ from gateway.runtime.pipeline import Pipeline
 log = logging.getLogger(__name__)
 
 
+# Replay lines are the one JSON form (gateway.jsonform) reshaped: a "type" tag, floats
+# rounded (small files, stable from run to run), enum names in lower case and an
+# estimate's parameters as top-level keys. They differ because that shape is a contract
+# older than the one form: pinned byte for byte by tests/golden/replay.jsonl, and
+# persisted in replay reports and the fleet view's Parquet metadata ("railgw.alerts").
+
+
+def _time(t_s: float | None) -> float | None:
+    return None if t_s is None else round(t_s, 6)
+
+
+def _sig(x: float | None, digits: int) -> float | None:
+    return None if x is None else float(f"{x:.{digits}g}")
+
+
 def estimate_json(est: Estimate) -> dict[str, Any]:
-    """An estimate as a JSON object (rounded to keep files small and stable)."""
-    out: dict[str, Any] = {"type": "estimate", "t_s": round(est.t_s, 6)}
-    for name, m, s in zip(est.names, est.mean, est.std, strict=True):
-        out[name] = {"mean": float(f"{m:.9g}"), "std": float(f"{s:.6g}")}
-    out["ess"] = float(f"{est.ess:.6g}")
-    out["updated"] = bool(est.updated)
-    for key, value in (("v_sy_mps", est.v_sy_mps), ("v_say_mps", est.v_say_mps)):
-        out[key] = float(f"{value:.6g}") if math.isfinite(value) else None
+    """An estimate as a replay line (rounded to keep files small and stable)."""
+    j = jsonform.estimate_json(est)
+    out: dict[str, Any] = {"type": "estimate", "t_s": _time(j["t_s"])}
+    for name, p in j["params"].items():
+        out[name] = {"mean": _sig(p["mean"], 9), "std": _sig(p["std"], 6)}
+    out["ess"] = _sig(j["ess"], 6)
+    out["updated"] = j["updated"]
+    for key in ("v_sy_mps", "v_say_mps"):
+        out[key] = _sig(j[key], 6)
     return out
 
 
 def alert_json(alert: Alert) -> dict[str, Any]:
-    """An alert event as a JSON object (the report's ``alerts`` entries)."""
-    return {"type": "alert", "t_s": round(alert.t_s, 6), "seq": alert.seq,
-            "parameter": alert.parameter, "severity": alert.severity.name.lower(),
-            "state": alert.state.name.lower(), "code": alert.code,
-            "value_rel": float(f"{alert.value_rel:.6g}") if math.isfinite(alert.value_rel)
-            else None, "message": alert.message}
+    """An alert event as a replay line (the report's ``alerts`` entries)."""
+    j = jsonform.alert_json(alert)
+    return {**j, "type": "alert", "t_s": _time(j["t_s"]),
+            "severity": j["severity"].lower(), "state": j["state"].lower(),
+            "value_rel": _sig(j["value_rel"], 6)}
 
 
 @dataclass
