@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from gateway import jsonform
+from gateway.jsonform import finite, number
 from gateway.records import Alert, Estimate
 
 CHECKPOINT_MAGIC = b"RGWCKPT1"
@@ -78,17 +79,13 @@ class AuditEntry:
     t_s: float | None = None
 
 
-_out = jsonform.finite
-_in = jsonform.number
-
-
 def alert_to_json(a: Alert, wall_time_s: float) -> dict[str, Any]:
     """An alert-history line: the one alert form plus the Unix time it was written."""
-    return {**jsonform.alert_json(a), "wall_time_s": _out(wall_time_s)}
+    return {**jsonform.alert_json(a), "wall_time_s": finite(wall_time_s)}
 
 
 def alert_from_json(d: dict[str, Any]) -> AlertEntry:
-    return AlertEntry(jsonform.alert_from_json(d), _in(d["wall_time_s"]))
+    return AlertEntry(jsonform.alert_from_json(d), number(d["wall_time_s"]))
 
 
 def estimate_to_json(e: Estimate, wall_time_s: float) -> dict[str, Any]:
@@ -99,45 +96,46 @@ def estimate_to_json(e: Estimate, wall_time_s: float) -> dict[str, Any]:
     one point per 10 s in 32 MiB; ``{"mean", "std"}`` objects make a line ~18 % longer.
     The alert line needs no such difference: it is the one form plus ``wall_time_s``."""
     j = jsonform.estimate_json(e)
-    return {"t_s": j["t_s"], "wall_time_s": _out(wall_time_s), "ess": j["ess"],
+    return {"t_s": j["t_s"], "wall_time_s": finite(wall_time_s), "ess": j["ess"],
             "params": {n: [p["mean"], p["std"]] for n, p in j["params"].items()}}
 
 
 def estimate_from_json(d: dict[str, Any]) -> EstimateEntry:
     params = d["params"]
     names = tuple(str(n) for n in params)
-    mean = tuple(_in(params[n][0]) for n in names)
-    std = tuple(_in(params[n][1]) for n in names)
-    return EstimateEntry(_in(d["t_s"]), _in(d["wall_time_s"]), names, mean, std, _in(d["ess"]))
+    mean = tuple(number(params[n][0]) for n in names)
+    std = tuple(number(params[n][1]) for n in names)
+    return EstimateEntry(number(d["t_s"]), number(d["wall_time_s"]), names, mean, std,
+                         number(d["ess"]))
 
 
 def baseline_to_json(b: BaselineEntry) -> dict[str, Any]:
-    return {"parameter": b.parameter, "t_s": _out(b.t_s), "wall_time_s": _out(b.wall_time_s),
+    return {"parameter": b.parameter, "t_s": finite(b.t_s), "wall_time_s": finite(b.wall_time_s),
             "note": b.note}
 
 
 def baseline_from_json(d: dict[str, Any]) -> BaselineEntry:
-    return BaselineEntry(str(d["parameter"]), _in(d["t_s"]), _in(d["wall_time_s"]),
+    return BaselineEntry(str(d["parameter"]), number(d["t_s"]), number(d["wall_time_s"]),
                          str(d.get("note", "")))
 
 
 def audit_to_json(a: AuditEntry) -> dict[str, Any]:
-    return {"wall_time_s": _out(a.wall_time_s), "command": a.command, "ok": a.ok,
-            "detail": a.detail, "t_s": None if a.t_s is None else _out(a.t_s)}
+    return {"wall_time_s": finite(a.wall_time_s), "command": a.command, "ok": a.ok,
+            "detail": a.detail, "t_s": None if a.t_s is None else finite(a.t_s)}
 
 
 def audit_from_json(d: dict[str, Any]) -> AuditEntry:
     if not isinstance(d["ok"], bool):
         raise TypeError(f"expected ok true/false, got {d['ok']!r}")
-    return AuditEntry(_in(d["wall_time_s"]), str(d["command"]), d["ok"],
-                      str(d.get("detail", "")), None if d.get("t_s") is None else _in(d["t_s"]))
+    return AuditEntry(number(d["wall_time_s"]), str(d["command"]), d["ok"],
+                      str(d.get("detail", "")), None if d.get("t_s") is None else number(d["t_s"]))
 
 
 def encode_checkpoint(c: Checkpoint) -> bytes:
     """``MAGIC | u32 LE header length | header JSON | blob``; the header holds the blob's
     size and SHA-256, so that a torn or bit-rotted checkpoint is detected on load."""
-    header = json.dumps({"format": CHECKPOINT_FORMAT, "t_s": _out(c.t_s),
-                         "wall_time_s": _out(c.wall_time_s), "version": c.version,
+    header = json.dumps({"format": CHECKPOINT_FORMAT, "t_s": finite(c.t_s),
+                         "wall_time_s": finite(c.wall_time_s), "version": c.version,
                          "size": len(c.blob), "sha256": hashlib.sha256(c.blob).hexdigest()},
                         allow_nan=False).encode()
     return CHECKPOINT_MAGIC + struct.pack("<I", len(header)) + header + c.blob
@@ -159,7 +157,7 @@ def decode_checkpoint(data: bytes) -> Checkpoint:
         if len(blob) != h["size"] or hashlib.sha256(blob).hexdigest() != h["sha256"]:
             raise ValueError(f"expected a {h['size']}-byte blob with SHA-256 {h['sha256']}, "
                              f"got {len(blob)} bytes that do not match")
-        return Checkpoint(blob, _in(h["t_s"]), _in(h["wall_time_s"]), str(h["version"]))
+        return Checkpoint(blob, number(h["t_s"]), number(h["wall_time_s"]), str(h["version"]))
     except (KeyError, TypeError) as err:
         raise ValueError(f"expected a checkpoint header, got {data[n + 4:n + 4 + hlen]!r} "
                          f"({err!r})") from err
