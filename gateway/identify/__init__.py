@@ -15,7 +15,7 @@ One job per module:
 - ``screening``: Morris screening with SALib and the choice of parameters;
 - ``parallel`` / ``optimise``: misfit evaluation on all cores; DE, DA, NM, pattern search;
 - ``prediction_error``: the no-track path, Kalman prediction-error maximum likelihood;
-- ``linalg``: expm and the filter Riccati equation without threaded LAPACK;
+- ``linalg``: one BLAS thread for a fit, and the filter Riccati equation;
 - ``pipeline``: the two Identifiers; ``report``: JSON and figures.
 
 See docs/identification.md.

@@ -16,6 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from gateway.errors import InputError
+from gateway.identify.linalg import one_blas_thread
 from gateway.identify.misfit import TrackMisfit
 from gateway.identify.params import FreeSpace
 
@@ -68,6 +69,7 @@ _OBJECTIVE: Objective | None = None
 def _init(objective: Objective) -> None:
     global _OBJECTIVE
     _OBJECTIVE = objective
+    one_blas_thread()      # for the worker's life: it is one of the cores already
 
 
 def _value(u: np.ndarray) -> float:

@@ -19,6 +19,7 @@ import numpy as np
 import scipy.optimize
 
 from gateway.identify.data import Dataset
+from gateway.identify.linalg import one_blas_thread
 from gateway.identify.misfit import MisfitConfig, Section, TrackMisfit
 from gateway.identify.optimise import Budget, MethodResult, run_method
 from gateway.identify.parallel import Evaluator, Objective
@@ -100,6 +101,10 @@ class TrackIdentifier:
         self.track, self.sections, self.config = track, list(sections), config
 
     def fit(self, dataset: Dataset) -> TrackResult:
+        with one_blas_thread():
+            return self._fit(dataset)
+
+    def _fit(self, dataset: Dataset) -> TrackResult:
         c = self.config
         t_start = time.perf_counter()
         nominal = ParamPoint.nominal()
@@ -177,6 +182,10 @@ class PredictionErrorIdentifier:
         self.ar_paper, self.decimation, self.maxfev = ar_paper, decimation, maxfev
 
     def fit(self, dataset: Dataset) -> PredictionErrorResult:
+        with one_blas_thread():
+            return self._fit(dataset)
+
+    def _fit(self, dataset: Dataset) -> PredictionErrorResult:
         t0 = time.perf_counter()
         sections = self.sections or [Section(float(dataset.t_s[0]),
                                              float(dataset.t_s[-1]) + 1.0 / dataset.fs_hz)]

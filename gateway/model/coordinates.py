@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from gateway.model.discretisation import van_loan
 from gateway.model.vehicle import (
     IDX,
     NX,
@@ -114,17 +115,9 @@ class FilterCoords:
 
     def discrete(self, theta: np.ndarray, v_mps: float, q: float,
                  dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Reference (Phi, Qd) by scipy expm and Van Loan for one theta; (16, 16) each."""
-        A = self.system(theta, v_mps)
-        n = NZ
-        M = np.zeros((2 * n, 2 * n))
-        M[:n, :n] = -A
-        M[:n, n:] = q * self.noise_unit()
-        M[n:, n:] = A.T
-        F = scipy.linalg.expm(M * dt_s)
-        phi = F[n:, n:].T
-        qd = phi @ F[:n, n:]
-        return phi, 0.5 * (qd + qd.T)
+        """Reference (Phi, Qd) for one theta (:func:`gateway.model.discretisation.van_loan`);
+        (16, 16) each."""
+        return van_loan(self.system(theta, v_mps), q * self.noise_unit(), dt_s)
 
     def initial_covariance(self, v_mps: float, ar_paper: float, dt_s: float,
                            doublings: int = 13, theta: np.ndarray | None = None) -> np.ndarray:

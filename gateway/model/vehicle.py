@@ -30,9 +30,9 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 
 from gateway.errors import ModelError
+from gateway.model.discretisation import van_loan, zero_order_hold
 
 NX = 17
 """Number of states."""
@@ -283,26 +283,17 @@ class Discrete:
 
 def discretize(A: np.ndarray, G: np.ndarray, q_intensity: float | np.ndarray,
                dt_s: float) -> Discrete:
-    """Exact discretisation: Phi = expm(A T); Qd by Van Loan's method; Gamma by augmentation.
+    """Exact discretisation (:mod:`gateway.model.discretisation`): Phi and Qd by Van
+    Loan's method, Gamma by the zero-order-hold augmentation.
 
     ``q_intensity`` is the white-noise intensity of each input (scalar or (nw,)).
     """
     if not dt_s > 0:
         raise ModelError(f"expected a positive sample period, got {dt_s} s")
-    n, m = G.shape
+    m = G.shape[1]
     Qc = np.diag(np.broadcast_to(np.asarray(q_intensity, dtype=float), (m,)))
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -A
-    M[:n, n:] = G @ Qc @ G.T
-    M[n:, n:] = A.T
-    F = scipy.linalg.expm(M * dt_s)
-    phi = F[n:, n:].T
-    qd = phi @ F[:n, n:]
-    qd = 0.5 * (qd + qd.T)
-    B = np.zeros((n + m, n + m))
-    B[:n, :n] = A
-    B[:n, n:] = G
-    gamma = scipy.linalg.expm(B * dt_s)[:n, n:]
+    phi, qd = van_loan(A, G @ Qc @ G.T, dt_s)
+    _, gamma = zero_order_hold(A, G, dt_s)
     return Discrete(phi=phi, qd=qd, gamma=gamma, dt_s=dt_s)
 
 
