@@ -3,6 +3,10 @@
 The readers (:mod:`gateway.identify.sources`: an interchange CSV or a CAN log through
 the gateway's own decode, validation, resampler and gate) each produce a
 :class:`~gateway.offline.interchange.Recording` for :func:`dataset_from_recording`.
+Its grid and gaps follow the offline tools' one rule (:mod:`gateway.offline.grid`,
+whose docstring also says where identification, estimation and the streaming
+resampler differ): identification needs a record already on its grid, and bridges
+its missing points, up to ``MAX_MISSING_FRACTION`` per signal.
 """
 
 from __future__ import annotations
@@ -14,12 +18,13 @@ import numpy as np
 
 from gateway.errors import InputError
 from gateway.model.vehicle import SENSORS_5
+from gateway.offline.grid import grid_period_s, interpolate
 from gateway.offline.interchange import SENSOR_COLUMNS, Recording
 
 log = logging.getLogger(__name__)
 
 UNIFORM_TOLERANCE = 1e-3
-"""Largest relative deviation of a sample interval from the mean one."""
+"""Largest relative deviation of a sample interval from the grid period (median step)."""
 MAX_MISSING_FRACTION = 0.01
 """Dropouts (NaN) are bridged by linear interpolation up to this fraction per signal."""
 
@@ -59,7 +64,8 @@ class Dataset:
         return offset_m + pos
 
 
-def _bridge_dropouts(name: str, values: np.ndarray, source: str) -> np.ndarray:
+def _bridge_dropouts(name: str, t_s: np.ndarray, values: np.ndarray, period_s: float,
+                     source: str) -> np.ndarray:
     bad = ~np.isfinite(values)
     if not bad.any():
         return values
@@ -67,9 +73,8 @@ def _bridge_dropouts(name: str, values: np.ndarray, source: str) -> np.ndarray:
     if bad.mean() > MAX_MISSING_FRACTION:
         raise InputError(f"{source}: column {column!r}: expected at most "
                          f"{MAX_MISSING_FRACTION:.0%} missing values, got {bad.mean():.1%}")
-    idx = np.arange(len(values))
     log.info("%s: bridged %d dropouts in %s by interpolation", source, int(bad.sum()), column)
-    return np.interp(idx, idx[~bad], values[~bad])
+    return interpolate(t_s, t_s, values, period_s, bridge=True)
 
 
 def dataset_from_recording(rec: Recording, sensors: tuple[str, ...] | None = None,
@@ -91,24 +96,27 @@ def dataset_from_recording(rec: Recording, sensors: tuple[str, ...] | None = Non
     if len(t) < 16:
         raise InputError(f"{rec.source}: expected at least 16 samples, got {len(t)}")
     dt = np.diff(t)
-    mean_dt = float(np.mean(dt))
-    if float(np.max(np.abs(dt - mean_dt))) > UNIFORM_TOLERANCE * mean_dt:
+    period = grid_period_s(t, rec.source)
+    if float(np.max(np.abs(dt - period))) > UNIFORM_TOLERANCE * period:
         raise InputError(f"{rec.source}: expected uniform sampling (within "
                          f"{UNIFORM_TOLERANCE:.1%}), got intervals from {dt.min():.6g} s "
                          f"to {dt.max():.6g} s")
     columns = []
     for s in names:
-        v = _bridge_dropouts(s, np.asarray(rec.signals[s], dtype=float), rec.source)
+        v = _bridge_dropouts(s, t, np.asarray(rec.signals[s], dtype=float), period,
+                             rec.source)
         if float(np.ptp(v)) <= 1e-12 * max(1.0, float(np.max(np.abs(v)))):
             raise InputError(f"{rec.source}: column {SENSOR_COLUMNS[s]!r}: expected a varying "
                              f"signal, got the constant value {v[0]:g}")
         columns.append(v)
-    speed = _speed(rec, speed_mps, len(t))
+    speed = _speed(rec, speed_mps, t, period)
     return Dataset(t_s=t, measured=np.column_stack(columns), sensors=names, speed_mps=speed,
-                   fs_hz=1.0 / mean_dt, source=rec.source)
+                   fs_hz=1.0 / period, source=rec.source)
 
 
-def _speed(rec: Recording, speed_mps: float | None, n: int) -> np.ndarray:
+def _speed(rec: Recording, speed_mps: float | None, t_s: np.ndarray,
+           period_s: float) -> np.ndarray:
+    n = len(t_s)
     if speed_mps is not None:
         if not (np.isfinite(speed_mps) and speed_mps > 0):
             raise InputError(f"expected a positive speed in m/s, got {speed_mps}")
@@ -116,7 +124,8 @@ def _speed(rec: Recording, speed_mps: float | None, n: int) -> np.ndarray:
     if "speed" not in rec.signals:
         raise InputError(f"{rec.source}: expected a speed_mps column or a --speed-mps "
                          f"value, got neither")
-    v = _bridge_dropouts("speed_mps", np.asarray(rec.signals["speed"], dtype=float), rec.source)
+    v = _bridge_dropouts("speed_mps", t_s, np.asarray(rec.signals["speed"], dtype=float),
+                         period_s, rec.source)
     if np.any(v <= 0):
         raise InputError(f"{rec.source}: column 'speed_mps': expected positive speeds, got "
                          f"minimum {float(np.min(v)):g}")

@@ -1,21 +1,37 @@
-"""Offline estimation input: put a recorded run on the estimator's uniform sample grid.
+"""The one "recorded run -> uniform grid" rule of the offline tools (estimate, identify).
 
-Grid rule (``to_grid``), for uneven CSV times:
+The rule, for a recording's times ``t`` (s) and each signal (:func:`grid_period_s`,
+:func:`interpolate`):
 
-- the rate is ``1 / median(dt)`` of the recorded times; the grid starts at the first
-  time and steps by that period up to the last time;
-- each sensor is interpolated linearly between its two neighbouring *valid* recorded
-  values; a grid point is **missing** (NaN, the estimator predicts without that
-  sensor) when those neighbours are more than ``GAP_PERIODS`` = 1.5 grid periods apart,
-  i.e. across a gap or a dropout;
-- speed comes from the ``speed_mps`` column when present (interpolated the same way,
-  but bridged across gaps since it varies slowly), else from the ``--speed`` value;
-- a grid point with no valid sensor is a predict-only sample (``update=False``).
+- the period is ``median(diff(t))``; times must increase and the rate be 1 Hz to 100 kHz;
+- a value at grid time ``t_g`` is linear between its two neighbouring *valid*
+  (finite) recorded values; it is **missing** (NaN) when those neighbours are more
+  than ``GAP_PERIODS`` = 1.5 periods apart (a gap or a dropout) or ``t_g`` lies
+  outside the valid values; ``bridge=True`` fills it linearly instead (speed, which
+  varies slowly, is always bridged).
 
-Bounds, checked before anything is allocated: the grid rate is 1 Hz to 100 kHz, no gap
-between two rows is longer than ``MAX_GAP_S`` (the estimator would predict through it
-point by point), and the grid has at most ``MAX_GRID_POINTS`` points (about 2.8 h at
-1 kHz, ~0.7 GB of grid). A longer recording is split into runs.
+What each tool does with a missing point is where they really differ, and only there:
+
+- ``estimate`` (:func:`to_grid`, uneven CSV times allowed): the grid starts at the
+  first time and steps by the period to the last; a missing point is NaN and the
+  estimator predicts through it; a point with no valid sensor is a predict-only sample
+  (``update=False``); speed from the ``speed_mps`` column, else ``--speed``.
+- ``identify`` (:func:`gateway.identify.data.dataset_from_recording`): it simulates the
+  model at every sample, so it needs a record already on its grid (each step within
+  0.1 % of the period; the recorded times are the grid) and bridges missing points,
+  up to 1 % per signal; more is an error.
+- The live **streaming resampler** (:mod:`gateway.frontend.resample`) keeps its own
+  rule, because it must: it places each sensor on its node's reconstructed clock by
+  sample index (not by time gaps), decides each grid point once and in real time
+  (a neighbour later than ``deadline_s`` makes the point missing, where an offline
+  tool sees the whole run), calls a point missing when a neighbouring node sample is
+  absent (two node periods, its own rate, not the grid's), and holds speed up to a
+  timeout instead of bridging to a future it has not seen.
+
+Bounds of :func:`to_grid`, checked before anything is allocated: no gap between two
+rows is longer than ``MAX_GAP_S`` (the estimator would predict through it point by
+point), and the grid has at most ``MAX_GRID_POINTS`` points (about 2.8 h at 1 kHz,
+~0.7 GB of grid). A longer recording is split into runs.
 """
 
 from __future__ import annotations
@@ -54,8 +70,23 @@ class GridData:
                          speed_mps=float(self.speed_mps[k]), update=bool(self.update[k]))
 
 
-def _interp_gapped(t_grid: np.ndarray, t: np.ndarray, x: np.ndarray, max_gap_s: float,
-                   bridge: bool) -> np.ndarray:
+def grid_period_s(t_s: np.ndarray, source: str) -> float:
+    """The grid period (s) of recorded times ``t_s`` (T,): their median step, checked."""
+    period = float(np.median(np.diff(t_s)))
+    if not period > 0:
+        raise InputError(f"{source}: expected increasing times, got median step {period}")
+    if not MIN_RATE_HZ <= 1.0 / period <= MAX_RATE_HZ:
+        raise InputError(f"{source}: expected a sample rate of {MIN_RATE_HZ:g} to "
+                         f"{MAX_RATE_HZ:g} Hz (median time step), got {1.0 / period:.6g} Hz")
+    return period
+
+
+def interpolate(t_grid: np.ndarray, t: np.ndarray, x: np.ndarray, period_s: float, *,
+                bridge: bool) -> np.ndarray:
+    """Signal ``x`` (T,) at times ``t`` (T,) on ``t_grid`` (K,) by the rule above; (K,).
+
+    NaN where missing (neighbours more than ``GAP_PERIODS * period_s`` apart, or outside
+    the valid values), unless ``bridge``; all NaN when ``x`` has no valid value."""
     valid = np.isfinite(x)
     if not valid.any():
         return np.full(len(t_grid), np.nan)
@@ -67,22 +98,18 @@ def _interp_gapped(t_grid: np.ndarray, t: np.ndarray, x: np.ndarray, max_gap_s: 
     prv = np.clip(np.searchsorted(tv, t_grid, side="right") - 1, 0, len(tv) - 1)
     exact = tv[nxt] == t_grid
     span = tv[nxt] - tv[prv]
-    bad = ((span > max_gap_s) & ~exact) | (t_grid < tv[0]) | (t_grid > tv[-1])
+    bad = ((span > GAP_PERIODS * period_s) & ~exact) | (t_grid < tv[0]) | (t_grid > tv[-1])
     out[bad] = np.nan
     return out
 
 
 def to_grid(rec: Recording, sensors: tuple[str, ...], default_speed_mps: float) -> GridData:
-    """Resample a recording onto the uniform grid (rule in the module docstring)."""
+    """A recording on the estimator's uniform grid (the rule and estimate's use of it:
+    module docstring)."""
     t = np.asarray(rec.t_s, dtype=float)
     if len(t) < 2:
         raise InputError(f"{rec.source}: expected at least 2 samples, got {len(t)}")
-    period = float(np.median(np.diff(t)))
-    if not period > 0:
-        raise InputError(f"{rec.source}: expected increasing times, got median step {period}")
-    if not MIN_RATE_HZ <= 1.0 / period <= MAX_RATE_HZ:
-        raise InputError(f"{rec.source}: expected a sample rate of {MIN_RATE_HZ:g} to "
-                         f"{MAX_RATE_HZ:g} Hz (median time step), got {1.0 / period:.6g} Hz")
+    period = grid_period_s(t, rec.source)
     gaps = np.diff(t)
     k = int(np.argmax(gaps))
     if gaps[k] > MAX_GAP_S:
@@ -99,14 +126,14 @@ def to_grid(rec: Recording, sensors: tuple[str, ...], default_speed_mps: float) 
     if missing:
         raise InputError(f"{rec.source}: expected columns for sensors {list(sensors)}, "
                          f"got none for {missing}")
-    values = np.column_stack([_interp_gapped(grid, t, rec.signals[s], GAP_PERIODS * period,
-                                             bridge=False) for s in sensors])
+    values = np.column_stack([interpolate(grid, t, rec.signals[s], period, bridge=False)
+                              for s in sensors])
     empty = [s for k, s in enumerate(sensors) if not np.isfinite(values[:, k]).any()]
     if empty:
         raise InputError(f"{rec.source}: expected values for sensors {list(sensors)}, got "
                          f"none for {empty}")
     if "speed" in rec.signals:
-        speed = _interp_gapped(grid, t, rec.signals["speed"], 0.0, bridge=True)
+        speed = interpolate(grid, t, rec.signals["speed"], period, bridge=True)
         if not np.all(np.isfinite(speed)):
             raise InputError(f"{rec.source}: expected at least one speed_mps value, got none")
     else:
