@@ -46,14 +46,31 @@ def unpack(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
 
 
 def generator_state(rng: np.random.Generator) -> dict[str, Any]:
-    """The Generator's bit-generator state (JSON-able)."""
-    return dict(rng.bit_generator.state)
+    """The Generator's bit-generator state and its SeedSequence (JSON-able).
+
+    The SeedSequence matters too: scipy's QMC engines (the prior's Halton points) spawn
+    their seed from it, so a restore that kept only the bit state would draw from fresh
+    OS entropy after a restart, and the run would no longer equal an uninterrupted one.
+    """
+    state = dict(rng.bit_generator.state)
+    seq = rng.bit_generator.seed_seq
+    if isinstance(seq, np.random.SeedSequence):
+        state["seed_seq"] = {"entropy": seq.entropy, "spawn_key": list(seq.spawn_key),
+                             "pool_size": seq.pool_size,
+                             "n_children_spawned": seq.n_children_spawned}
+    return state
 
 
 def generator_from_state(state: dict[str, Any]) -> np.random.Generator:
-    """A Generator that continues exactly from ``state``."""
+    """A Generator that continues exactly from ``state`` (a checkpoint without the
+    SeedSequence, from before it was kept, restores the bit state alone)."""
     try:
-        bitgen = getattr(np.random, state["bit_generator"])()
+        state = dict(state)
+        seq = state.pop("seed_seq", None)
+        kind = getattr(np.random, state["bit_generator"])
+        bitgen = kind() if seq is None else kind(np.random.SeedSequence(
+            seq["entropy"], spawn_key=tuple(seq["spawn_key"]), pool_size=seq["pool_size"],
+            n_children_spawned=seq["n_children_spawned"]))
         bitgen.state = state
     except (AttributeError, KeyError, TypeError, ValueError) as err:
         raise EstimatorError(f"expected a numpy bit-generator state, got {err}") from err
