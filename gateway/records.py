@@ -2,7 +2,7 @@
 
 Data flows one way::
 
-    can.Message -> DecodedFrame (codec) -> Sample (resampler) -> Estimate (estimator)
+    can.Message -> DecodedFrame (decoded by can/codec) -> Sample (resampler) -> Estimate (estimator)
     -> Alert (alert policy) -> sinks
 
 Every stage imports these records, never a sibling stage.
@@ -11,6 +11,7 @@ Every stage imports these records, never a sibling stage.
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -160,3 +161,22 @@ class Alert:
     code: int
     value_rel: float
     message: str = ""
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """One validated frame. ``values`` holds physical values of the data signals (DBC
+    units, float); NotAvailable is NaN. CRC, counter and sample index are separate
+    fields; ``sample_idx`` is None for messages without one (gateway outputs)."""
+
+    message: str
+    arbitration_id: int
+    counter: int
+    sample_idx: int | None
+    values: dict[str, float]
+    timestamp_s: float
+
+    @property
+    def not_available(self) -> frozenset[str]:
+        """Names of the signals that were NotAvailable in this frame."""
+        return frozenset(k for k, v in self.values.items() if math.isnan(v))

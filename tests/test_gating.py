@@ -12,11 +12,11 @@ import pytest
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.can.codec import DecodedFrame, default_codec
+from gateway.can.codec import default_codec
 from gateway.errors import ConfigError, StateError
 from gateway.frontend.gating import REASONS, Gate, GateConfig
 from gateway.frontend.resample import NO_LOWPASS_HZ, Resampler, ResamplerConfig
-from gateway.records import GridSample, Quality, Sample
+from gateway.records import DecodedFrame, GridSample, Quality, Sample
 
 V_PAPER = 42.5
 CONFIG = GateConfig(sensors=3, default_speed_mps=V_PAPER)
@@ -35,7 +35,8 @@ def traffic(scenario: str, duration_s: float, nodes: tuple[str, ...] = ("WSN", "
 
 
 def grid(frames, suspect=lambda f: False) -> list[GridSample]:
-    rs = Resampler(ResamplerConfig(fs_hz=1000.0, lowpass_hz=NO_LOWPASS_HZ))
+    rs = Resampler(ResamplerConfig(fs_hz=1000.0, lowpass_hz=NO_LOWPASS_HZ),
+                   periods_s=default_codec().sensor_periods_s())
     out: list[GridSample] = []
     for f in frames:
         out.extend(rs.push(f, suspect=suspect(f)))

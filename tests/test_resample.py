@@ -16,18 +16,19 @@ import scipy.signal
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.can.codec import DecodedFrame, default_codec
+from gateway.can.codec import default_codec
 from gateway.errors import ConfigError, FrameError, StateError
 from gateway.frontend.lowpass import LowpassState, design_lowpass, lowpass_step
 from gateway.frontend.resample import NO_LOWPASS_HZ, PAPER_LOWPASS_HZ, Resampler, ResamplerConfig
 from gateway.model.vehicle import SENSORS_5
-from gateway.records import GridSample, Quality
+from gateway.records import DecodedFrame, GridSample, Quality
 
 NODE_OF_MESSAGE = {"WSN_Lat": "WSN", "BGN_Lat": "BGN", "BDN_Lat": "BDN", "VEH_Speed": "VEH"}
 NODE_OF_SENSOR = {"acc_w1": "WSN", "acc_w2": "WSN", "acc_b": "BGN", "gyro_b": "BGN",
                   "acc_bd": "BDN"}
 RAW = ResamplerConfig(fs_hz=1000.0, lowpass_hz=NO_LOWPASS_HZ)
 PAPER = ResamplerConfig(fs_hz=1000.0, lowpass_hz=PAPER_LOWPASS_HZ)
+PERIODS_S = default_codec().sensor_periods_s()
 SETTLE_S = 0.3
 """Clock fits and filters have settled after this (s of data)."""
 
@@ -52,7 +53,7 @@ def traffic(scenario: str, duration_s: float, seed: int = 5
 def run(frames, config: ResamplerConfig = RAW, chunks: list[int] | None = None
         ) -> tuple[Resampler, list[GridSample]]:
     """Push frames (popping after each chunk, default after each frame), then flush."""
-    rs = Resampler(config)
+    rs = Resampler(config, periods_s=PERIODS_S)
     out: list[GridSample] = []
     i = 0
     for n in chunks or [1] * len(frames):
@@ -105,7 +106,7 @@ def assert_same(a: list[GridSample], b: list[GridSample]) -> None:
 @pytest.mark.parametrize("seed", [5, 7])
 def test_reconstructed_sample_times_match_the_truth_within_a_few_microseconds(seed):
     sim, frames = traffic("nominal", 4.0, seed)
-    rs = Resampler(RAW)
+    rs = Resampler(RAW, periods_s=PERIODS_S)
     err_s: dict[str, list[float]] = {m: [] for m in NODE_OF_MESSAGE}
     assert sim.records is not None
     t_true = {m: np.concatenate(sim.records[n].t_true_s) for m, n in NODE_OF_MESSAGE.items()}
@@ -240,19 +241,19 @@ def test_streaming_equals_batch_for_any_chunking(scenario):
 def test_checkpoint_and_restore_mid_stream_gives_identical_output():
     _, frames = traffic("dropout", 5.0)
     _, ref = run(frames, PAPER)
-    rs = Resampler(PAPER)
+    rs = Resampler(PAPER, periods_s=PERIODS_S)
     out: list[GridSample] = []
     for i, f in enumerate(frames):
         if i == 7000:                                   # inside the BDN dropout
             blob = pickle.dumps(rs.snapshot())
             del rs
-            rs = Resampler(PAPER, pickle.loads(blob))
+            rs = Resampler(PAPER, pickle.loads(blob), periods_s=PERIODS_S)
         out.extend(rs.push(f))
         out.extend(rs.pop_ready(f.timestamp_s))
     out.extend(rs.flush())
     assert_same(out, ref)
     with pytest.raises(StateError, match="expected a resampler state"):
-        Resampler(RAW, pickle.loads(blob))
+        Resampler(RAW, pickle.loads(blob), periods_s=PERIODS_S)
 
 
 # ---------------------------------------------------------------- filters
@@ -309,12 +310,12 @@ def test_config_is_validated():
     with pytest.raises(ConfigError, match="expected fs_hz"):
         ResamplerConfig(fs_hz=0.0, lowpass_hz=NO_LOWPASS_HZ)
     with pytest.raises(ConfigError, match="cutoff"):
-        Resampler(ResamplerConfig(fs_hz=50.0, lowpass_hz=PAPER_LOWPASS_HZ))
+        Resampler(ResamplerConfig(fs_hz=50.0, lowpass_hz=PAPER_LOWPASS_HZ), periods_s=PERIODS_S)
 
 
 def test_throughput_is_well_above_a_full_bus():
     _, frames = traffic("nominal", 4.0)
-    rs = Resampler(PAPER)
+    rs = Resampler(PAPER, periods_s=PERIODS_S)
     t0 = time.perf_counter()
     for f in frames:
         rs.push(f)

@@ -30,6 +30,7 @@ from dbc import DBC_PATH
 from gateway.can.busload import BusLoad, CyclicFrame, bus_load
 from gateway.can.e2e import COUNTER_MASK, COUNTER_MODULUS, e2e_crc, protect
 from gateway.errors import DbcError, FrameError
+from gateway.records import DecodedFrame
 
 FRAME_LENGTH_BYTES = 8
 """Every frame on this bus has DLC 8."""
@@ -51,25 +52,6 @@ SENSOR_SIGNALS: dict[str, tuple[str, str]] = {
 _NAN = math.nan
 SignalValue = float | str | None
 """An encode input: a physical value, a VAL_ name, or None/NaN for NotAvailable."""
-
-
-@dataclass(frozen=True)
-class DecodedFrame:
-    """One validated frame. ``values`` holds physical values of the data signals (DBC
-    units, float); NotAvailable is NaN. CRC, counter and sample index are separate
-    fields; ``sample_idx`` is None for messages without one (gateway outputs)."""
-
-    message: str
-    arbitration_id: int
-    counter: int
-    sample_idx: int | None
-    values: dict[str, float]
-    timestamp_s: float
-
-    @property
-    def not_available(self) -> frozenset[str]:
-        """Names of the signals that were NotAvailable in this frame."""
-        return frozenset(k for k, v in self.values.items() if math.isnan(v))
 
 
 @dataclass(frozen=True)
@@ -219,6 +201,11 @@ class Codec:
     def cantools_message(self, name: str) -> cantools.database.Message:
         """The underlying cantools message (for tools and tests that need raw access)."""
         return self._cantools[self.message(name).name]
+
+    def sensor_periods_s(self) -> dict[str, float]:
+        """Each sensor message's cycle time (GenMsgCycleTime), s: the resampler's
+        per-stream periods, handed to it so the front end reads no DBC itself."""
+        return {m: (self.cycle_time_ms(m) or 1) * 1e-3 for m in self.sensor_messages()}
 
     def cycle_time_ms(self, name: str) -> int | None:
         """GenMsgCycleTime of message ``name`` in ms; None for event-driven messages."""

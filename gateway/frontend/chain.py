@@ -54,7 +54,7 @@ class FrontEnd:
 
     def __init__(self, cfg: Config, codec: Codec, *, speed_mps: float | None = None) -> None:
         self.validator = Validator(codec)
-        self.resampler = Resampler(resampler_config(cfg))
+        self.resampler = Resampler(resampler_config(cfg), periods_s=codec.sensor_periods_s())
         self.gate = Gate(gate_config(cfg))
         self.speed_mps = speed_mps
         self._lateral = {codec.message(m).frame_id: self.validator.messages[m]

@@ -65,7 +65,7 @@ from typing import cast
 
 import numpy as np
 
-from gateway.can.codec import SENSOR_SIGNALS, DecodedFrame, default_codec
+from gateway.can.codec import SENSOR_SIGNALS
 from gateway.errors import ConfigError, InputError, StateError
 from gateway.frontend.clocksync import (
     SAMPLE_INDEX_MODULUS,
@@ -78,7 +78,7 @@ from gateway.frontend.clocksync import (
 )
 from gateway.frontend.lowpass import Lowpass, LowpassState, design_lowpass, lowpass_step
 from gateway.model.vehicle import SENSORS_5
-from gateway.records import GridSample, Quality
+from gateway.records import DecodedFrame, GridSample, Quality
 
 LATERAL_MESSAGES: tuple[str, ...] = ("WSN_Lat", "BGN_Lat", "BDN_Lat")
 SPEED_MESSAGE = "VEH_Speed"
@@ -264,8 +264,7 @@ class _Stream:
     lateral: bool
 
 
-def _streams(config: ResamplerConfig) -> dict[str, _Stream]:
-    codec = default_codec()
+def _streams(config: ResamplerConfig, periods_s: Mapping[str, float]) -> dict[str, _Stream]:
     out = {}
     for message in (*LATERAL_MESSAGES, SPEED_MESSAGE):
         pairs = [(sensor, sig) for sensor, (msg, sig) in SENSOR_SIGNALS.items() if msg == message]
@@ -273,7 +272,11 @@ def _streams(config: ResamplerConfig) -> dict[str, _Stream]:
         get = operator.itemgetter(*names)
         values = get if len(names) > 1 else (lambda v, g=get: (g(v),))
         cols = tuple(SENSORS_5.index(s) for s, _ in pairs if s in SENSORS_5)
-        period_s = (codec.cycle_time_ms(message) or 1) * 1e-3
+        try:
+            period_s = float(periods_s[message])
+        except KeyError:
+            raise ConfigError(f"expected the cycle time of {message} in periods_s, got "
+                              f"{sorted(periods_s)}") from None
         span = 2 * (config.deadline_s + config.speed_timeout_s + 0.1) / period_s + 64
         out[message] = _Stream(message, cols, values, period_s,
                                1 << math.ceil(math.log2(span)), message != SPEED_MESSAGE)
@@ -300,9 +303,12 @@ def _advance(node: NodeState, k: int) -> None:
 class Resampler:
     """The fixed-rate resampler. ``push`` frames in receive order, ``pop_ready`` the grid."""
 
-    def __init__(self, config: ResamplerConfig, state: ResamplerState | None = None) -> None:
+    def __init__(self, config: ResamplerConfig, state: ResamplerState | None = None, *,
+                 periods_s: Mapping[str, float]) -> None:
+        """``periods_s``: each sensor message's cycle time, s (from the DBC:
+        :meth:`gateway.can.codec.Codec.sensor_periods_s`); the resampler reads no file."""
         self.config = config
-        self._streams = _streams(config)
+        self._streams = _streams(config, periods_s)
         self._lateral = [s for s in self._streams.values() if s.lateral]
         cutoff_hz = cast("Mapping[str, float | None]", config.lowpass_hz)   # a dict by now
         self._lp: list[Lowpass | None] = [
@@ -329,7 +335,8 @@ class Resampler:
 
     # ------------------------------------------------------------------ public
     def snapshot(self) -> ResamplerState:
-        """A deep copy of the state, for checkpoints (restore: ``Resampler(config, state)``)."""
+        """A deep copy of the state, for checkpoints (restore: ``Resampler(config, state,
+        periods_s=...)``)."""
         return copy.deepcopy(self._st)
 
     def push(self, frame: DecodedFrame, suspect: bool = False) -> list[GridSample]:

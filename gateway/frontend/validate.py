@@ -25,9 +25,10 @@ from dataclasses import dataclass, field
 
 import can
 
-from gateway.can.codec import Codec, DecodedFrame
+from gateway.can.codec import Codec
 from gateway.can.e2e import COUNTER_MODULUS, CounterCheck, CounterStatus, SenderCheck, SenderParams
 from gateway.errors import FrameError
+from gateway.records import DecodedFrame
 
 
 @dataclass

@@ -35,9 +35,10 @@ import pytest
 from vcanlib import CHANNEL, WAIT_S, GatewayProcess, RawCan, grow_rcvbuf, rmem_default
 
 from gateway.can.bus import open_bus
-from gateway.can.codec import Codec, DecodedFrame
+from gateway.can.codec import Codec
 from gateway.can.source import CAN_ERR_BUSOFF, CAN_ERR_RESTARTED, BusState
 from gateway.model.vehicle import THETA_NOMINAL
+from gateway.records import DecodedFrame
 
 IN_VM = os.environ.get("RAILGW_IN_VM") == "1"
 pytestmark = [
