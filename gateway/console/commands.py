@@ -23,8 +23,9 @@ from gateway import __version__
 from gateway.console import render
 from gateway.console.reply import Reply
 from gateway.console.session import ConsoleLimits, PinGuard, Session
-from gateway.console.view import PARAMS, ServiceView, alert_view, resolve_parameter
+from gateway.console.view import PARAMS, ServiceView, resolve_parameter
 from gateway.errors import InputError
+from gateway.jsonform import alert_json
 from gateway.records import Severity
 
 HISTORY_JSON_ROWS = 72
@@ -143,8 +144,8 @@ def _estimates(ctx: Context, args: list[str]) -> Reply:
 def _alerts(ctx: Context, args: list[str]) -> Reply:
     _no_args("alerts", args)
     active, recent = ctx.view.alerts()
-    data = {"active": [alert_view(a) for a in active],
-            "recent": [alert_view(a) for a in recent]}
+    data = {"active": [alert_json(a) for a in active],
+            "recent": [alert_json(a) for a in recent]}
     return Reply(True, "alerts", text=render.alerts(active, recent), data=data)
 
 

@@ -5,9 +5,9 @@ The read side returns plain dicts (JSON-compatible, shapes below) so that the co
 can print them for a fitter and pass them through unchanged in JSON mode; the console
 renders them defensively (missing keys show as "-"). The write side returns typed
 frozen results (:class:`AckResult`, :class:`BaselineResult`, :class:`ThresholdResult`),
-each with its JSON form. The helpers here (:func:`estimates_view`, :func:`alert_view`,
-:func:`history_row`, :func:`resolve_parameter`) build the read shapes from the shared
-records, for the service and for the test doubles alike: alerts and estimates in the one
+each with its JSON form (alerts: :func:`gateway.jsonform.alert_json`). The helpers here
+(:func:`estimates_view`, :func:`history_row`, :func:`resolve_parameter`) build the read
+shapes from the shared records, for the service and for the test doubles alike: alerts and estimates in the one
 JSON form of :mod:`gateway.jsonform`, relative values and the confidence gate from the
 one judge, :mod:`gateway.alerts.judge`.
 
@@ -40,7 +40,7 @@ class AckResult:
     alert: Alert
 
     def to_json(self) -> dict[str, Any]:
-        return {"alert": alert_view(self.alert)}
+        return {"alert": alert_json(self.alert)}
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class BaselineResult:
 
     def to_json(self) -> dict[str, Any]:
         return {"parameter": self.parameter, "t_s": finite(self.t_s),
-                "events": [alert_view(a) for a in self.cleared], "estimator": self.estimator}
+                "events": [alert_json(a) for a in self.cleared], "estimator": self.estimator}
 
 
 @dataclass(frozen=True)
@@ -175,9 +175,6 @@ def resolve_parameter(text: str) -> str:
     raise InputError(f"expected a component or parameter ({choices}), got {text!r}")
 
 
-
-alert_view = alert_json
-"""An :class:`Alert` as the console shows it in JSON: exactly the one alert form."""
 
 
 def estimates_view(est: Estimate | None, *,
