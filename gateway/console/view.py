@@ -7,9 +7,9 @@ renders them defensively (missing keys show as "-"). The write side returns type
 frozen results (:class:`AckResult`, :class:`BaselineResult`, :class:`ThresholdResult`),
 each with its JSON form (alerts: :func:`gateway.jsonform.alert_json`). The helpers here
 (:func:`estimates_view`, :func:`history_row`, :func:`resolve_parameter`) build the read
-shapes from the shared records, for the service and for the test doubles alike: alerts and estimates in the one
-JSON form of :mod:`gateway.jsonform`, relative values and the confidence gate from the
-one judge, :mod:`gateway.alerts.judge`.
+shapes from the shared records, for the service and for the test doubles alike: alerts
+and estimates in the one JSON form of :mod:`gateway.jsonform`, relative values and the
+confidence gate from the one judge, :mod:`gateway.alerts.judge`.
 
 Every method is called from the console's port thread: the service must make them
 thread-safe. Write methods are called only after login and a successful audit of the
