@@ -12,6 +12,9 @@ READY=1 is sent once the bus is open and the worker runs; until the worker is up
 first start compiles the numba kernels, minutes on a cold cache) the start time-out
 is extended by EXTEND_TIMEOUT_USEC, for at most ``STARTUP_EXTEND_LIMIT_S``. WATCHDOG=1
 only while the pipeline makes progress; STATUS= shows the live estimates.
+
+Over 400 lines: it is the one place that wires every stage (bus, pipeline, sinks, state,
+console, systemd) and its main loop; each stage's logic lives in its own package.
 """
 
 from __future__ import annotations
