@@ -299,11 +299,14 @@ class Service:
         p = self.pipeline
         try:
             while not self.flags.stop:
-                if not ready and self.source.opened.wait(0.05) and p.stats().worker_ready:
+                # Read once per turn: READY, the extension and STATUS must agree on it (a
+                # worker that came up between them let "waiting for estimates" out first).
+                warming = not ready and not p.stats().worker_ready
+                if not ready and not warming and self.source.opened.wait(0.05):
                     ready = True
                     self.notifier.ready("pipeline up: bus open, estimator running")
                     log.info("pipeline up")
-                elif not ready and not p.stats().worker_ready and \
+                elif warming and \
                         started + STARTUP_EXTEND_LIMIT_S > time.monotonic() >= next_extend:
                     next_extend = time.monotonic() + STARTUP_EXTEND_EVERY_S
                     self.notifier.extend_timeout(STARTUP_EXTEND_S, "starting: estimator "
@@ -344,7 +347,7 @@ class Service:
                     next_publish = now + 0.5
                     self._count_load(now)
                     self.view.publish()
-                if now >= next_status and (ready or p.stats().worker_ready):
+                if now >= next_status and not warming:
                     # While the worker warms up, the extension's STATUS says so: not
                     # overwritten by "waiting for estimates" (systemctl status shows it).
                     next_status = now + 2.0
