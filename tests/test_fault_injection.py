@@ -52,6 +52,8 @@ from gateway.offline.replay import replay
 from gateway.sinks.state import ALERTS, POLICY, StateStore
 from gateway.sinks.store import files
 
+pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
+
 DURATION_S = 6.0
 """Length of the simulated traffic, s."""
 FAULT_S = 2.5

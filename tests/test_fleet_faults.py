@@ -21,6 +21,8 @@ from gateway.fleet.replay import ReplayReport, dask_client, replay_store, result
 from gateway.fleet.runs import estimator_version  # noqa: E402
 from gateway.fleet.store import Store  # noqa: E402
 
+pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
+
 SPEC = FleetSpec(vehicles=2, days=2, runs_per_day=1, run_s=5.0, seed=7)
 CFG = with_overrides(Config(), {"estimator.particles": 100})
 

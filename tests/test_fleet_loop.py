@@ -17,6 +17,8 @@ from gateway.fleet.report import build_report  # noqa: E402
 from gateway.fleet.runs import estimator_version  # noqa: E402
 from gateway.fleet.store import Store  # noqa: E402
 
+pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
+
 SPEC = FleetSpec(vehicles=3, days=6, runs_per_day=1, run_s=6.0, degrade_days=10.0,
                  fail_frac=0.5, seed=3)
 CFG = with_overrides(Config(), {"estimator.particles": 100})

@@ -30,6 +30,8 @@ from gateway.errors import GatewayError
 from gateway.offline.grid import to_grid
 from gateway.offline.interchange import OPTIONAL, REQUIRED, read_csv
 
+pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
+
 COUNTS: dict[str, int] = {"toml": 0, "csv": 0, "candump": 0, "console": 0}
 TRACEBACKS: list[str] = []
 TARGET_INPUTS = 10_000

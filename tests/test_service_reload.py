@@ -35,6 +35,8 @@ from gateway.records import Estimate
 from gateway.service.daemon import RELOADABLE, Service
 from gateway.sinks.outputs import CanSink
 
+pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
+
 ROOT = Path(__file__).resolve().parent.parent
 HEALTH_ID = default_codec().message("GW_Health").frame_id
 EST_CSY_ID = default_codec().message("GW_EstCsy").frame_id

@@ -19,6 +19,8 @@ from gateway.errors import StateError
 from gateway.records import Alert, AlertState, Severity
 from gateway.sinks.store import ALERTS, AUDIT, LogBounds, StateStore, files
 
+pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
+
 CHILD = textwrap.dedent("""
     import os, signal, sys
     from gateway.records import Alert, AlertState, Severity

@@ -26,7 +26,7 @@ from typing import Any
 import pytest
 from smokeenv import ROOT, Installed
 
-pytestmark = pytest.mark.smoke
+pytestmark = [pytest.mark.smoke, pytest.mark.slow]
 
 EDITABLE = ROOT / ".venv" / "bin" / "python"
 PIN = "4711"
