@@ -79,8 +79,8 @@ def test_batched_kernel_matches_the_reference(doublings: int) -> None:
 
 
 def test_the_model_stages_call_the_one_reference() -> None:
-    """vehicle.discretize, FilterCoords.discrete and identify's forced response give
-    exactly the reference's numbers (no private copy of the method left)."""
+    """vehicle.discretize and FilterCoords.discrete give exactly the reference's numbers;
+    identify's forced response agrees with it to rounding."""
     A = system_matrix(VehicleParams(), THETA_NOMINAL, V_MPS)
     G = input_matrix()
     q = track_intensity(AR_PAPER_DEFAULT, V_MPS)
@@ -95,6 +95,9 @@ def test_the_model_stages_call_the_one_reference() -> None:
     ref = van_loan(coords.system(th, V_MPS), q * coords.noise_unit(), 1 / FS_HZ)
     assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
 
+    # identify keeps its own Pade 13 (gateway.model.discretisation says why): equal to
+    # the reference to rounding, not bit for bit
     forced = discretise_forced(A, 5e-3)
     hold = zero_order_hold(A, G, 5e-3)
-    assert np.array_equal(forced[0], hold[0]) and np.array_equal(forced[1], hold[1])
+    for a, b in zip(forced, hold, strict=True):
+        assert np.max(np.abs(a - b)) <= 1e-12 * np.max(np.abs(b))

@@ -4,11 +4,18 @@ import numpy as np
 import scipy.linalg
 from threadpoolctl import threadpool_info
 
-from gateway.identify.linalg import dare_filter, one_blas_thread
+from gateway.identify.linalg import dare_filter, expm, one_blas_thread
 from gateway.identify.params import ParamPoint
 from gateway.identify.prediction_error import reduced_model
 from gateway.model.discretisation import van_loan
 from gateway.model.vehicle import SENSORS_5, discretize, measurement_noise, track_intensity
+
+
+def test_expm_matches_scipy_on_the_stiff_vehicle_matrix():
+    A, G, _ = reduced_model(ParamPoint.nominal(), SENSORS_5, 42.5)
+    for dt in (1e-3, 5e-3, 2e-2):
+        ours, ref = expm(A * dt), scipy.linalg.expm(A * dt)
+        assert np.max(np.abs(ours - ref)) <= 1e-11 * np.max(np.abs(ref))
 
 
 def test_one_blas_thread_limits_openblas_and_gives_the_same_discretisation():

@@ -1,10 +1,11 @@
-"""Small dense linear algebra for the inner loops: one BLAS thread, and the filter DARE.
+"""Small dense linear algebra for the inner loops: one BLAS thread, expm, the filter DARE.
 
 Why: on this (shared, 2-core) machine ``scipy.linalg.expm`` and ``scipy.linalg.solve``
 of a 30 x 30 matrix took 2-20 ms, not 40 us, because each LAPACK call woke an
 OpenBLAS thread per core. :func:`one_blas_thread` (threadpoolctl) removes that cause
-for the length of a fit, so the inner loops call the one exact discretisation
-(:mod:`gateway.model.discretisation`, scipy) instead of a copy of Pade 13. The DARE
+for the length of a fit. The identification keeps its own Pade 13 :func:`expm` (why:
+:mod:`gateway.model.discretisation`, the one place that says so); it is checked against
+scipy's in ``tests/test_identify_linalg.py``. The DARE
 solver uses only ``@`` and ``numpy.linalg.solve``; it is checked against scipy in
 ``tests/test_identify_linalg.py``.
 """
@@ -15,6 +16,34 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from gateway.errors import ModelError
+
+_PADE13 = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0,
+           1187353796428800.0, 129060195264000.0, 10559470521600.0, 670442572800.0,
+           33522128640.0, 1323241920.0, 40840800.0, 960960.0, 16380.0, 182.0, 1.0)
+_THETA13 = 5.371920351148152
+
+
+def expm(M: np.ndarray) -> np.ndarray:
+    """e^M for a square matrix (n, n): Pade 13 with scaling and squaring (Higham 2005)."""
+    A = np.asarray(M, dtype=float)
+    norm = float(np.max(np.sum(np.abs(A), axis=0)))
+    if not np.isfinite(norm):
+        raise ModelError("expected a finite matrix for the exponential, got inf/nan entries")
+    s = max(0, int(np.ceil(np.log2(norm / _THETA13)))) if norm > _THETA13 else 0
+    A = A / (2.0**s)
+    b = _PADE13
+    ident = np.eye(A.shape[0])
+    A2 = A @ A
+    A4 = A2 @ A2
+    A6 = A4 @ A2
+    U = A @ (A6 @ (b[13] * A6 + b[11] * A4 + b[9] * A2)
+             + b[7] * A6 + b[5] * A4 + b[3] * A2 + b[1] * ident)
+    V = (A6 @ (b[12] * A6 + b[10] * A4 + b[8] * A2)
+         + b[6] * A6 + b[4] * A4 + b[2] * A2 + b[0] * ident)
+    R = np.linalg.solve(V - U, V + U)
+    for _ in range(s):
+        R = R @ R
+    return R
 
 
 def one_blas_thread() -> threadpool_limits:

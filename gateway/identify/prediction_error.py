@@ -26,10 +26,9 @@ import numpy as np
 
 from gateway.errors import InputError, ModelError
 from gateway.identify.data import Dataset
-from gateway.identify.linalg import dare_filter
+from gateway.identify.linalg import dare_filter, expm
 from gateway.identify.misfit import Section, check_sections
 from gateway.identify.params import ParamPoint
-from gateway.model.discretisation import van_loan
 from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
     SENSOR_NOISE_VAR,
@@ -55,6 +54,20 @@ def reduced_model(point: ParamPoint, sensors: tuple[str, ...],
     Q, _ = np.linalg.qr(np.hstack([N, np.eye(A.shape[0])]))
     L = Q[:, 2:A.shape[0]].T
     return L @ A @ L.T, L @ input_matrix(), output_matrix(A, sensors) @ L.T
+
+
+def van_loan(A: np.ndarray, G: np.ndarray, q: float, dt_s: float) -> tuple[np.ndarray,
+                                                                          np.ndarray]:
+    """Exact discretisation (Phi, Qd) of x' = A x + G w, w white of intensity q per input."""
+    n = A.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -A
+    M[:n, n:] = q * (G @ G.T)
+    M[n:, n:] = A.T
+    F = expm(M * dt_s)
+    phi = F[n:, n:].T
+    qd = phi @ F[:n, n:]
+    return np.ascontiguousarray(phi), np.ascontiguousarray(0.5 * (qd + qd.T))
 
 
 @numba.njit(cache=True)
@@ -234,8 +247,7 @@ class PredictionErrorMisfit:
         """NLL summed over all samples of all sections."""
         try:
             Ar, Gr, Hr = reduced_model(point, self.dataset.sensors, self.speed_mps)
-            phi_view, qd = van_loan(Ar, self.q * (Gr @ Gr.T), self.dt_s)
-            phi = np.ascontiguousarray(phi_view)
+            phi, qd = van_loan(Ar, Gr, self.q, self.dt_s)
             P = dare_filter(phi, Hr, qd, self.R)
         except (ModelError, np.linalg.LinAlgError):
             return NLL_PENALTY * self.n_samples

@@ -14,14 +14,20 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from gateway.identify.linalg import expm
 from gateway.identify.params import ParamPoint
-from gateway.model.discretisation import zero_order_hold
 from gateway.model.vehicle import input_matrix, output_matrix, system_matrix
 
 
 def discretise_forced(A: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact zero-order-hold pair ``(Phi (17, 17), Gamma (17, 2))`` for sample period dt_s."""
-    return zero_order_hold(A, input_matrix(), dt_s)
+    G = input_matrix()
+    n, m = G.shape
+    aug = np.zeros((n + m, n + m))
+    aug[:n, :n] = A
+    aug[:n, n:] = G
+    E = expm(aug * dt_s)
+    return E[:n, :n], E[:n, n:]
 
 
 @numba.njit(cache=True)
