@@ -49,8 +49,7 @@ from gateway.can.e2e import e2e_crc
 from gateway.config import Config, with_overrides
 from gateway.frontend.stats import FrontEndStats
 from gateway.offline.replay import replay
-from gateway.sinks.state import ALERTS, POLICY, StateStore
-from gateway.sinks.store import files
+from gateway.sinks.store import ALERTS, POLICY, StateStore, files
 
 pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
 

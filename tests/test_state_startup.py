@@ -14,16 +14,8 @@ from gateway.config import Config, with_overrides
 from gateway.model.vehicle import THETA_NOMINAL
 from gateway.records import Estimate
 from gateway.service.daemon import Service
-from gateway.sinks.state import (
-    ALERTS,
-    AUDIT,
-    BASELINES,
-    ESTIMATES,
-    POLICY,
-    StateStore,
-    restore_policy,
-)
-from gateway.sinks.store import files
+from gateway.sinks.state import restore_policy
+from gateway.sinks.store import ALERTS, AUDIT, BASELINES, ESTIMATES, POLICY, StateStore, files
 
 NESTED = b"[" * 100_000 + b"]" * 100_000
 ALERT_LINE = json.dumps({"seq": 7, "t_s": 1.0, "wall_time_s": 1.0, "parameter": "csy_ns_per_m",

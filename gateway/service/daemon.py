@@ -43,7 +43,8 @@ from gateway.runtime.pipeline import Pipeline
 from gateway.service.sdnotify import Notifier
 from gateway.service.view import ServiceViewImpl
 from gateway.sinks.outputs import CanSink, Health, HealthFlags, LogSink
-from gateway.sinks.state import StateStore, restore_policy
+from gateway.sinks.state import restore_policy
+from gateway.sinks.store import StateStore
 
 log = logging.getLogger(__name__)
 

@@ -1,9 +1,10 @@
 """The service's persisted state: the state directory, and the alert policy restored from it.
 
 The store is a package (``files`` primitives, ``segments`` bounded logs, ``ledger`` the
-seq reservation, ``codec`` record formats, ``store`` the ``StateStore``); this module
-re-exports it and adds :func:`restore_policy`, the one start-up path from the directory
-to a running :class:`~gateway.alerts.policy.AlertPolicy` that never stops the service.
+seq reservation, ``codec`` record formats, ``store`` the ``StateStore``:
+:mod:`gateway.sinks.store`); this module adds :func:`restore_policy`, the one start-up
+path from the directory to a running :class:`~gateway.alerts.policy.AlertPolicy` that
+never stops the service.
 """
 
 from __future__ import annotations
@@ -13,29 +14,7 @@ import logging
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
 from gateway.errors import StateError
 from gateway.records import Alert
-from gateway.sinks.store import (
-    ALERTS,
-    AUDIT,
-    BASELINES,
-    CHECKPOINT,
-    ESTIMATES,
-    ESTIMATES_PREVIOUS,
-    POLICY,
-    SEQ_LEDGER,
-    AlertEntry,
-    AuditEntry,
-    BaselineEntry,
-    Checkpoint,
-    EstimateEntry,
-    LogBounds,
-    StateStore,
-)
-
-__all__ = [
-    "ALERTS", "AUDIT", "BASELINES", "CHECKPOINT", "ESTIMATES", "ESTIMATES_PREVIOUS", "POLICY",
-    "SEQ_LEDGER", "AlertEntry", "AuditEntry", "BaselineEntry", "Checkpoint", "EstimateEntry",
-    "LogBounds", "StateStore", "restore_policy",
-]
+from gateway.sinks.store import ALERTS, POLICY, StateStore
 
 log = logging.getLogger(__name__)
 
