@@ -1,12 +1,19 @@
 """``gateway bench``: measured real-time factors, in one run, on this machine.
 
-Benchmarks are a registry (:data:`BENCHES`, name -> function returning a dict) so that
-pipeline benchmarks can be added next to the estimator one; ``--what`` picks them.
+Benchmarks are a registry (:data:`BENCHES`, name -> function returning a JSON-able dict
+or list) so that pipeline benchmarks can be added next to the estimator one; ``--what``
+picks them (default: :data:`DEFAULT_BENCHES`).
 
-``estimator``: the exact RBPF (m particles, 3 sensors, 1 kHz, paper Sec. 4.2 data) over
-a whole run (including the convergence phase with frequent resampling) and over its
-steady state, against the naive baseline (:mod:`firmware_sim.studies.naive`) measured on a short
-slice. Real-time factor = simulated seconds / wall seconds.
+``estimator``: the RBPF (m particles, 3 sensors, 1 kHz, paper Sec. 4.2 data), exact mode
+then fast mode over the same data with the same seed, each over a whole run (including the
+convergence phase with frequent resampling) and over its steady state, against the naive
+baseline (:mod:`firmware_sim.studies.naive`) measured on a short slice. Real-time factor =
+simulated seconds / wall seconds.
+
+``sweep``: the cost curve (:mod:`firmware_sim.studies.sweep`): the same three at each m
+of ``--sweep-particles``, a list of records, and with ``--plot`` a PNG (RTF against m,
+log-log). Exact mode costs ~m/1000 s of wall time per simulated second, so the sweep is
+not in the default set.
 """
 
 from __future__ import annotations
@@ -14,17 +21,30 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 from collections.abc import Callable
+from dataclasses import asdict
 from typing import Any
 
-from gateway.cli import SEED, config_value, integer, real
+from gateway.cli import SEED, config_value, integer, output_path, real
 
+SWEEP_PARTICLES = (250, 500, 1000, 2000, 4000, 8000)
+"""Issue 14's particle counts for the cost curve."""
 FLOP_PER_PARTICLE_STEP = 2 * (16**3 + 136 * 16 + 16**2 + 3 * (16**2 + 2 * 16 + 136 + 16))
 """Multiply-adds x 2 of one exact 16-state predict + 3-sensor update, upper-triangle
 products counted as such (about 17 kflop)."""
 PEAK_GFLOPS_PER_CORE = 62.5
 """Two 8-wide AVX-512 FMA units at about 2 GHz: the issue's ~125 GFLOP/s for 2 cores."""
+
+
+def particle_counts(text: str) -> tuple[int, ...]:
+    """An argparse type: comma-separated particle counts, each in [estimator] particles'
+    domain; returned sorted, without repeats."""
+    parse = config_value("estimator", "particles")
+    words = [w.strip() for w in text.split(",")]
+    if not all(words):
+        raise argparse.ArgumentTypeError(f"expected comma-separated particle counts such as "
+                                         f"250,500,1000, got {text!r}")
+    return tuple(sorted({parse(w) for w in words}))
 
 
 def _cores() -> dict[str, int]:
@@ -36,70 +56,63 @@ def _cores() -> dict[str, int]:
 
 
 def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
-    import numba
-    import numpy as np
-
-    from firmware_sim.studies.naive import naive_steps
-    from firmware_sim.truth import add_sensor_noise, select, simulate
-    from gateway.estimator.rbpf import RBPF, RBPFConfig
-    from gateway.model.vehicle import (
-        THETA_SEC42,
-        VehicleParams,
-        discretize,
-        input_matrix,
-        measurement_noise,
-        output_matrix,
-        sensor_set,
-        system_matrix,
-        track_intensity,
+    from firmware_sim.studies.sweep import (
+        FS_HZ,
+        SENSORS,
+        bench_data,
+        filter_config,
+        naive_rtf,
+        time_filter,
     )
-    from gateway.records import Sample
 
-    fs, m, v = 1000.0, args.particles, 42.5
-    n = int(round(args.seconds * fs))
-    rng = np.random.default_rng(args.seed)
-    truth = simulate(np.repeat(THETA_SEC42.as_array()[None], n, 0), np.full(n, v), fs, rng)
-    sensors = sensor_set(3)
-    Y = add_sensor_noise(select(truth.outputs, sensors), sensors, rng)
-    samples = [Sample(t_s=k / fs, values=Y[k], speed_mps=v) for k in range(n)]
-    filt = RBPF(RBPFConfig(fs_hz=fs, n_particles=m, sensors=3, seed=args.seed))
-    filt.step(samples[0])                       # JIT / cache load outside the timing
-    split = min(n - 1, int(round(args.steady_after_s * fs)))
-    t0 = time.perf_counter()
-    filt.run(samples[1:split], output_every=10)
-    t1 = time.perf_counter()
-    resamples_before = filt.n_resamples
-    filt.run(samples[split:], output_every=10)
-    t2 = time.perf_counter()
-    whole_rtf = (n - 1) / fs / (t2 - t0)
-    steady_rtf = (n - split) / fs / (t2 - t1)
-    gflops = FLOP_PER_PARTICLE_STEP * m * (n - split) / (t2 - t1) / 1e9
-
-    # naive baseline on a short slice (17 states, physical coordinates)
-    p = VehicleParams()
-    A = system_matrix(p, THETA_SEC42, v)
-    d = discretize(A, input_matrix(), track_intensity(args.ar_paper, v), 1.0 / fs)
-    H = output_matrix(A, sensors)
-    phi = np.repeat(d.phi[None], m, 0)
-    qd = np.repeat(d.qd[None], m, 0)
-    x = np.zeros((m, 17))
-    P = np.repeat((d.qd * 1e3)[None], m, 0)
-    k = args.naive_steps
-    naive_steps(phi, qd, H, measurement_noise(sensors), x, P, Y[:1])     # warm-up
-    t3 = time.perf_counter()
-    naive_steps(phi, qd, H, measurement_noise(sensors), x, P, Y[:k])
-    naive_rtf = k / fs / (time.perf_counter() - t3)
-    return {"particles": m, "sensors": 3, "rate_hz": fs, "seconds": args.seconds,
-            "numba_threads": numba.get_num_threads(), **_cores(),
-            "exact_rtf_whole_run": whole_rtf, "exact_rtf_steady": steady_rtf,
+    m = args.particles
+    data = bench_data(args.seconds, args.seed)
+    exact = time_filter(data, filter_config("exact", m, args.seed, args.ar_paper),
+                        args.steady_after_s)
+    fast_cfg = filter_config("fast", m, args.seed, args.ar_paper, args.fast_warmup_s)
+    fast = time_filter(data, fast_cfg, args.steady_after_s)
+    naive = naive_rtf(data, m, args.naive_steps, args.ar_paper)
+    return {"particles": m, "sensors": SENSORS, "rate_hz": FS_HZ, "seconds": args.seconds,
+            "threads": exact.threads, "numba_threads": exact.threads, **_cores(),
+            "exact_rtf_whole_run": exact.rtf_whole_run, "exact_rtf_steady": exact.rtf_steady,
             "steady_after_s": args.steady_after_s,
-            "resamples_convergence": resamples_before,
-            "resamples_steady": filt.n_resamples - resamples_before,
-            "naive_rtf": naive_rtf, "naive_steps_measured": k,
-            "ratio_whole_run": whole_rtf / naive_rtf, "ratio_steady": steady_rtf / naive_rtf,
-            "steady_gflops": gflops,
-            "ceiling_rtf": PEAK_GFLOPS_PER_CORE * numba.get_num_threads() * 1e9
-            / (FLOP_PER_PARTICLE_STEP * m * fs)}
+            "resamples_convergence": exact.resamples_convergence,
+            "resamples_steady": exact.resamples_steady,
+            "fast_rtf_whole_run": fast.rtf_whole_run, "fast_rtf_steady": fast.rtf_steady,
+            "fast_warmup_s": fast_cfg.fast_warmup_s,
+            "fast_resamples_convergence": fast.resamples_convergence,
+            "fast_resamples_steady": fast.resamples_steady,
+            "naive_rtf": naive, "naive_steps_measured": args.naive_steps,
+            "ratio_whole_run": exact.rtf_whole_run / naive,
+            "ratio_steady": exact.rtf_steady / naive,
+            "ratio_fast_naive_whole_run": fast.rtf_whole_run / naive,
+            "ratio_fast_naive_steady": fast.rtf_steady / naive,
+            "steady_gflops": FLOP_PER_PARTICLE_STEP * m * FS_HZ * exact.rtf_steady / 1e9,
+            "ceiling_rtf": PEAK_GFLOPS_PER_CORE * exact.threads * 1e9
+            / (FLOP_PER_PARTICLE_STEP * m * FS_HZ)}
+
+
+def bench_sweep(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The cost curve (:mod:`firmware_sim.studies.sweep`); threads set per particle count."""
+    from firmware_sim.studies.sweep import bench_data, plot_sweep, sweep_point
+    from gateway.estimator.threads import configure, kernel_threads
+
+    data = bench_data(args.seconds, args.seed)
+    records = []
+    for m in args.sweep_particles:
+        configure(kernel_threads(m, args.threads))
+        records.append(sweep_point(data, m, seed=args.seed,
+                                   steady_after_s=args.steady_after_s,
+                                   naive_steps_n=args.naive_steps, ar_paper=args.ar_paper,
+                                   exact=m <= args.sweep_exact_max,
+                                   fast_warmup_s=args.fast_warmup_s))
+    configure(kernel_threads(args.particles, args.threads))
+    if args.plot:
+        from gateway.cli import writing
+
+        with writing(args.plot):
+            plot_sweep(records, args.plot)
+    return [asdict(r) for r in records]
 
 
 def _pipeline(args: argparse.Namespace) -> dict[str, Any]:
@@ -114,17 +127,21 @@ def _latency(args: argparse.Namespace) -> dict[str, Any]:
     return {**bench_latency(args), **_cores()}
 
 
-BENCHES: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
+BENCHES: dict[str, Callable[[argparse.Namespace], dict[str, Any] | list[dict[str, Any]]]] = {
     "estimator": bench_estimator,
     "pipeline": _pipeline,
     "latency": _latency,
+    "sweep": bench_sweep,
 }
+DEFAULT_BENCHES = ("estimator", "latency", "pipeline")
+"""What runs without ``--what``: everything but the (slow) sweep."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="measure real-time factors on this machine")
     p.add_argument("--what", choices=sorted(BENCHES), action="append",
-                   help="benchmark(s) to run (default: all)")
+                   help="benchmark(s) to run, repeatable (default: "
+                   f"{', '.join(DEFAULT_BENCHES)})")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--particles", type=config_value("estimator", "particles"), default=1000,
                    help="particles (1000)")
@@ -136,6 +153,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="naive baseline steps (20)")
     p.add_argument("--threads", type=integer(1, 1024), default=None,
                    help="numba threads (all cores)")
+    p.add_argument("--fast-warmup-s", type=real(0.0, 3600.0), default=None,
+                   help="fast mode's exact warm-up in s (the estimator's default)")
+    p.add_argument("--sweep-particles", type=particle_counts,
+                   default=SWEEP_PARTICLES, metavar="M,M,...",
+                   help="sweep: particle counts (" + ",".join(map(str, SWEEP_PARTICLES)) + ")")
+    p.add_argument("--sweep-exact-max", type=integer(0, 1_000_000), default=8000,
+                   metavar="M", help="sweep: exact mode only up to this m (8000)")
+    p.add_argument("--plot", type=output_path, metavar="OUT.png", default=None,
+                   help="sweep: write the cost curve as a PNG")
     p.add_argument("--seed", type=SEED, default=0, help="data and filter seed (0)")
     p.add_argument("--ar-paper", type=config_value("estimator", "track_roughness"),
                    default=2 * 0.33e-3, help=argparse.SUPPRESS)
@@ -150,14 +176,35 @@ def run(args: argparse.Namespace) -> int:
     if args.particles < 2 or args.seconds <= 0 or args.naive_steps < 1:
         raise InputError(f"expected particles >= 2, seconds > 0, naive steps >= 1, got "
                          f"{args.particles}, {args.seconds}, {args.naive_steps}")
+    what = tuple(dict.fromkeys(args.what or DEFAULT_BENCHES))
+    if args.plot and "sweep" not in what:
+        raise InputError(f"expected --what sweep with --plot, got --what {','.join(what)}")
     configure(kernel_threads(args.particles, args.threads))
-    results = {name: BENCHES[name](args) for name in (args.what or sorted(BENCHES))}
+    results = {name: BENCHES[name](args) for name in what}
     if args.json:
         print(json.dumps(results, indent=1))
         return 0
     for name, r in results.items():
         print(f"[{name}]")
+        if isinstance(r, list):
+            _table(r)
+            continue
         for key, value in r.items():
             print(f"  {key:>24}: {value:.4g}" if isinstance(value, float)
                   else f"  {key:>24}: {value}")
+    if args.plot:
+        print(f"wrote {args.plot}")
     return 0
+
+
+def _table(rows: list[dict[str, Any]]) -> None:
+    """Records as aligned columns (None as "-")."""
+    if not rows:
+        return
+    keys = list(rows[0])
+    cells = [[f"{r[k]:.4g}" if isinstance(r[k], float) else "-" if r[k] is None
+              else str(r[k]) for k in keys] for r in rows]
+    widths = [max(len(k), *(len(c[i]) for c in cells)) for i, k in enumerate(keys)]
+    print("  " + "  ".join(k.rjust(w) for k, w in zip(keys, widths, strict=True)))
+    for c in cells:
+        print("  " + "  ".join(v.rjust(w) for v, w in zip(c, widths, strict=True)))

@@ -1,0 +1,165 @@
+"""``gateway bench``: the estimator bench's fast-mode keys, the threads in effect, and the
+cost-curve sweep (``--what sweep``: JSON records and the PNG). Tiny settings; no timing
+assertions (speed is measured by the benchmark itself, on an idle machine)."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numba
+import pytest
+
+from firmware_sim.studies.sweep import bench_data, filter_config
+from gateway.cli import main
+from gateway.estimator.rbpf import RBPF
+from gateway.estimator.threads import kernel_threads, max_threads
+from gateway.model.vehicle import AR_PAPER_DEFAULT
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+SEED = 0
+"""At this seed, m = 32 and a 10 ms warm-up, fast mode resamples 3 times in the 50 ms and
+exact mode twice: the counts in the JSON tell which mode ran."""
+TINY = ["--seconds", "0.05", "--naive-steps", "2", "--seed", str(SEED)]
+OLD_KEYS = ("exact_rtf_whole_run", "exact_rtf_steady", "naive_rtf", "ratio_whole_run",
+            "ratio_steady", "steady_gflops", "ceiling_rtf", "numba_threads",
+            "available_cores")
+NEW_KEYS = ("fast_rtf_whole_run", "fast_rtf_steady", "ratio_fast_naive_whole_run",
+            "ratio_fast_naive_steady", "threads")
+RECORD_RTFS = ("fast_rtf_whole_run", "fast_rtf_steady", "exact_rtf_whole_run",
+               "exact_rtf_steady", "naive_rtf")
+
+
+@pytest.fixture(autouse=True)
+def _keep_numba_threads() -> Iterator[None]:
+    """The bench sets numba's thread count for the process; give it back afterwards."""
+    before = numba.get_num_threads()
+    yield
+    numba.set_num_threads(before)
+
+
+def bench_json(argv: list[str], capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
+    assert main(["bench", "--json", *argv]) == 0
+    out: dict[str, Any] = json.loads(capsys.readouterr().out)
+    return out
+
+
+def positive(value: Any) -> bool:
+    return isinstance(value, float) and math.isfinite(value) and value > 0
+
+
+def resamples(mode: str, particles: int, fast_warmup_s: float) -> int:
+    """Resample-moves of a reference run of the bench's filter over the bench's data."""
+    data = bench_data(0.05, SEED)
+    filt = RBPF(filter_config(mode, particles, SEED, AR_PAPER_DEFAULT, fast_warmup_s))
+    filt.run(data.samples)
+    return filt.n_resamples
+
+
+def test_estimator_keeps_its_keys_and_adds_fast_mode(capsys):
+    r = bench_json(["--what", "estimator", "--particles", "32", "--fast-warmup-s", "0.01",
+                    *TINY], capsys)
+    assert list(r) == ["estimator"]
+    est = r["estimator"]
+    for key in OLD_KEYS + NEW_KEYS:
+        assert key in est, key
+    for key in ("exact_rtf_whole_run", "exact_rtf_steady", "fast_rtf_whole_run",
+                "fast_rtf_steady", "naive_rtf", "ratio_fast_naive_whole_run"):
+        assert positive(est[key]), (key, est[key])
+    assert est["ratio_fast_naive_whole_run"] == pytest.approx(
+        est["fast_rtf_whole_run"] / est["naive_rtf"])
+    assert est["fast_warmup_s"] == 0.01
+    # the counts come from a filter in each mode over the same data with the same seed
+    assert resamples("fast", 32, 0.01) != resamples("exact", 32, 0.01), "pick another SEED"
+    assert (est["fast_resamples_convergence"] + est["fast_resamples_steady"]
+            == resamples("fast", 32, 0.01))
+    assert (est["resamples_convergence"] + est["resamples_steady"]
+            == resamples("exact", 32, 0.01))
+
+
+def test_threads_option_is_the_threads_measured_with(capsys):
+    m = 128                                    # 16 chunks: the smallest parallel filter
+    one = bench_json(["--what", "estimator", "--what", "sweep", "--particles", str(m),
+                      "--threads", "1", "--sweep-particles", f"16,{m}", *TINY], capsys)
+    assert one["estimator"]["threads"] == 1 and one["estimator"]["numba_threads"] == 1
+    assert [rec["threads"] for rec in one["sweep"]] == [1, 1]
+    assert positive(one["estimator"]["fast_rtf_whole_run"])
+    every = bench_json(["--what", "estimator", "--what", "sweep", "--particles", str(m),
+                        "--sweep-particles", f"16,{m}", *TINY], capsys)
+    assert every["estimator"]["threads"] == kernel_threads(m) == max_threads()
+    assert [rec["threads"] for rec in every["sweep"]] == [1, max_threads()]
+
+
+def test_sweep_json_and_plot(tmp_path: Path, capsys):
+    png = tmp_path / "cost.png"
+    r = bench_json(["--what", "sweep", "--sweep-particles", "32,16,32", "--plot", str(png),
+                    "--fast-warmup-s", "0.01", *TINY], capsys)
+    assert list(r) == ["sweep"]
+    assert [rec["particles"] for rec in r["sweep"]] == [16, 32]
+    for rec in r["sweep"]:
+        for key in RECORD_RTFS:
+            assert positive(rec[key]), (rec["particles"], key, rec[key])
+    assert r["sweep"][1]["fast_resamples"] == resamples("fast", 32, 0.01)
+    assert r["sweep"][1]["exact_resamples"] == resamples("exact", 32, 0.01)
+    data = png.read_bytes()
+    assert data.startswith(PNG_MAGIC) and len(data) > 10_000
+
+
+def test_sweep_exact_max_skips_exact_mode_above_it(tmp_path: Path, capsys):
+    png = tmp_path / "cost.png"
+    r = bench_json(["--what", "sweep", "--sweep-particles", "16,32", "--sweep-exact-max", "16",
+                    "--plot", str(png), *TINY], capsys)
+    small, large = r["sweep"]
+    assert positive(small["exact_rtf_whole_run"]) and positive(small["exact_rtf_steady"])
+    assert large["exact_rtf_whole_run"] is None and large["exact_rtf_steady"] is None
+    assert large["exact_resamples"] is None
+    assert positive(large["fast_rtf_whole_run"]) and positive(large["naive_rtf"])
+    assert png.read_bytes().startswith(PNG_MAGIC)
+
+
+def test_sweep_text_table(capsys):
+    assert main(["bench", "--what", "sweep", "--sweep-particles", "16",
+                 "--sweep-exact-max", "0", *TINY]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "[sweep]"
+    header, row = lines[1].split(), lines[2].split()
+    assert header[:3] == ["particles", "threads", "fast_rtf_whole_run"]
+    assert row[0] == "16" and row[header.index("exact_rtf_steady")] == "-"
+
+
+def one_line_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    try:
+        code = main(argv)
+    except SystemExit as stop:
+        code = int(stop.code or 0)
+    captured = capsys.readouterr()
+    assert captured.out == "" and "Traceback" not in captured.err
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    return code, lines[0]
+
+
+@pytest.mark.parametrize("value, words", [
+    ("16,x", "expected int for [estimator] particles, got 'x'"),
+    ("", "expected comma-separated particle counts such as 250,500,1000, got ''"),
+    ("16,,32", "expected comma-separated particle counts"),
+    ("250,1", "[estimator] particles: expected a value in [2, 20000], got 1"),
+    ("1e9", "expected int for [estimator] particles, got '1e9'"),
+])
+def test_bad_sweep_particles_is_a_one_line_usage_error(value, words, capsys):
+    code, line = one_line_error(["bench", "--what", "sweep", "--sweep-particles", value],
+                                capsys)
+    assert code == 2
+    assert line.startswith("python -m gateway bench: error: argument --sweep-particles: ")
+    assert words in line, line
+
+
+def test_plot_without_the_sweep_is_refused(tmp_path: Path, capsys):
+    png = tmp_path / "cost.png"
+    code, line = one_line_error(["bench", "--what", "estimator", "--plot", str(png)], capsys)
+    assert code == 2
+    assert line == "error: expected --what sweep with --plot, got --what estimator"
+    assert not png.exists()
