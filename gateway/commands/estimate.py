@@ -35,6 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="speed in m/s when the CSV has no speed_mps column (42.5)")
     p.add_argument("--history-every-s", type=real(0.0, 3600.0, lo_open=True), default=0.01,
                    help="history interval in s (0.01)")
+    p.add_argument("--mode", choices=("fast", "exact"), default="fast",
+                   help="fast: steady-state gains (default); exact: the exact recursion")
     p.add_argument("--threads", type=integer(1, 1024), default=None,
                    help="numba threads (default: all available cores)")
     p.add_argument("--plot", type=output_path, metavar="OUT.png",
@@ -59,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     ar = args.track_roughness if args.track_roughness is not None else AR_PAPER_DEFAULT
     cfg = RBPFConfig(fs_hz=grid.fs_hz, n_particles=args.particles, sensors=args.sensors,
                      ar_paper=ar, estimate_ar=args.estimate_ar, seed=args.seed,
-                     walk_rel_per_sqrt_s=(args.drift,) * 3)
+                     walk_rel_per_sqrt_s=(args.drift,) * 3, mode=args.mode)
     every = max(1, int(round(args.history_every_s * grid.fs_hz)))
     filt = RBPF(cfg)
     start = time.perf_counter()
@@ -69,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.csv}: expected samples to estimate from, got none")
     history = history_rows(estimates)
     duration_s = float(grid.t_s[-1] - grid.t_s[0]) + 1.0 / grid.fs_hz
-    settings = {"file": str(args.csv), "particles": args.particles, "seed": args.seed,
+    settings = {"file": str(args.csv), "particles": args.particles, "mode": args.mode,
+                "seed": args.seed,
                 "sensors": list(sensors), "track_roughness_ar_paper": ar,
                 "estimate_ar": bool(args.estimate_ar), "drift_per_sqrt_s": args.drift,
                 "grid_rate_hz": grid.fs_hz,

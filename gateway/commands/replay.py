@@ -61,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from gateway.offline.grid import history_rows
 
     history = history_rows(result.estimates)
-    settings = {"particles": cfg.estimator.particles, "sensors": cfg.estimator.sensors,
+    settings = {"particles": cfg.estimator.particles, "mode": cfg.estimator.mode,
+                "sensors": cfg.estimator.sensors,
                 "seed": cfg.estimator.seed, "track_roughness": cfg.estimator.track_roughness,
                 "estimate_track_roughness": cfg.estimator.estimate_track_roughness,
                 "drift_per_sqrt_s": cfg.estimator.drift_per_sqrt_s,

@@ -8,6 +8,7 @@ Shapes: particles first, ``z (N, d)``, weights ``(N,)``.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from scipy.stats import qmc
 
@@ -109,3 +110,38 @@ def normalise_log(logw: np.ndarray) -> tuple[np.ndarray, float]:
     e = np.exp(logw - top)
     s = float(e.sum())
     return e / s, top + float(np.log(s))
+
+
+@numba.njit(cache=True, nogil=True)
+def absorb(logw: np.ndarray, ll: np.ndarray, nis: np.ndarray, w_prev: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, float, float, float]:
+    """One sample's bookkeeping in one pass (the filter's per-sample Python cost).
+
+    ``logw`` (N,) plus the sample's log-likelihoods ``ll[:N]`` gives the new log-weights;
+    returns (new log-weights, normalised weights, log of their sum, ESS, the NIS
+    ``nis[:N]`` averaged under the previous weights ``w_prev``). All -inf gives zero
+    weights, a -inf sum and ESS 0, as :func:`normalise_log`.
+    """
+    n = logw.shape[0]
+    out = np.empty(n)
+    top = -np.inf
+    nisbar = 0.0
+    for i in range(n):
+        v = logw[i] + ll[i]
+        out[i] = v
+        if v > top:
+            top = v
+        nisbar += w_prev[i] * nis[i]
+    w = np.zeros(n)
+    if not np.isfinite(top):
+        return out, w, -np.inf, 0.0, nisbar
+    total = 0.0
+    for i in range(n):
+        e = np.exp(out[i] - top)
+        w[i] = e
+        total += e
+    sq = 0.0
+    for i in range(n):
+        w[i] /= total
+        sq += w[i] * w[i]
+    return out, w, top + np.log(total), 1.0 / sq, nisbar

@@ -39,6 +39,7 @@ from gateway.estimator.kalman import from_lanes, kf_step, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
 from gateway.estimator.rbpf_config import AR_NAME, RBPFConfig
+from gateway.estimator.steady import NullVectors, SteadyGains, kf_steady, kf_subset, steady_gains
 from gateway.model.coordinates import NZ, FilterCoords
 from gateway.model.vehicle import (
     IDX,
@@ -57,7 +58,7 @@ PRIOR_SAMPLES = 2**13
 """The state prior is the covariance this many samples after a start from rest."""
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
-            "updated_since_move", "_v_ref", "_p0_set")
+            "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left")
 
 
 class RBPF:
@@ -69,6 +70,9 @@ class RBPF:
         self.sensors = sensor_set(config.sensors)
         self.ny = len(self.sensors)
         self._r = np.ascontiguousarray(np.diag(measurement_noise(self.sensors)))
+        self._fast = config.mode == "fast"
+        self._steady = False
+        self._warm_left = 0
         m = config.n_particles
         self._nch = n_chunks(m)
         self._ll = np.zeros(self._nch * LANES)
@@ -135,6 +139,8 @@ class RBPF:
         self._v_ref = float(v_mps)
         self._H = np.ascontiguousarray(self.coords.output(self.sensors, v_mps))
         self._disc = DiscreteBatch(self.coords, v_mps, 1.0 / cfg.fs_hz)
+        if self._fast:
+            self._null = NullVectors(self.coords.terms(v_mps), cfg.nominal.as_array())
         if restart or not self._p0_set:
             p0 = self.coords.initial_covariance(v_mps, cfg.ar_paper, 1.0 / cfg.fs_hz)
             self._P0 = np.ascontiguousarray(p0)
@@ -142,6 +148,9 @@ class RBPF:
             self._phi = np.empty((self._nch, NZ * NZ * LANES))
             self._qd = np.empty_like(self._phi)
             self._P = self._own_prior()
+            self._gains = SteadyGains.empty(self._nch, self.ny)
+            self._steady = False
+            self._warm_left = int(round(cfg.fast_warmup_s * cfg.fs_hz)) if self._fast else 0
             self._p0_set = True
         self._recompute()
 
@@ -160,6 +169,21 @@ class RBPF:
 
     def _recompute(self) -> None:
         self._disc.compute(self.theta[:, :3], self._q(), self._phi, self._qd)
+        if self._steady:
+            self._recompute_gains()
+        elif self._fast and self._warm_left <= 0:
+            self._enter_steady()
+
+    def _enter_steady(self) -> None:
+        """Fast mode, after the exact warm-up: every filter takes its steady-state gains."""
+        self._steady = True
+        self._recompute_gains()
+
+    def _recompute_gains(self) -> None:
+        """Fast mode: every particle's steady-state filter at its theta and v_ref."""
+        v0 = to_lanes(self._null(self.theta))
+        steady_gains(self._phi, self._qd, v0, self._H, self._r, self._gains)
+        self._P = self._gains.p_pred
 
     # ------------------------------------------------------------------ step
     def step(self, sample: Sample) -> Estimate:
@@ -195,27 +219,37 @@ class RBPF:
         self._ll[:] = 0.0
         self._nis[:] = 0.0
         self._dead[:] = False
-        kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use, self._P0,
-                self._ll, self._nis, self._dead)
+        if not self._steady:
+            kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
+                    self._P0, self._ll, self._nis, self._dead)
+            if self._fast:
+                self._warm_left -= 1
+                if self._warm_left <= 0:
+                    self._enter_steady()
+        elif use.all() or not use.any():
+            kf_steady(self._X, self._phi, self._H, y, use, self._gains, self._ll, self._nis,
+                      self._dead)
+        else:
+            kf_subset(self._X, self._phi, self._H, self._r, y, use, self._gains,
+                      self.config.n_particles, self._ll, self._nis, self._dead)
         m = self.config.n_particles
-        w_prev = self._weights()
-        self.logw = self.logw + self._ll[:m]
+        self.logw, w, total, ess, nis = pt.absorb(self.logw, self._ll, self._nis,
+                                                   self._weights())
         self.t_s = float(sample.t_s)
         self.n_steps += 1
         self.since_move += 1
-        self.updated_since_move += int(bool(use.any()))
-        w, total = pt.normalise_log(self.logw)
+        used = bool(use.any())
+        self.updated_since_move += int(used)
         self._w_cache, self._w_of = w, self.logw
         if not np.isfinite(total):
             self._reseed_all()
             w = self._weights()
-        est = self._summary(sample.t_s, bool(use.any()), w) if summarize else None
+            ess = pt.effective_sample_size(w)
+        est = self._summary(sample.t_s, used, w) if summarize else None
         alarm = False
-        if self.config.monitor is not None and use.any():
-            nis = float(np.dot(w_prev, self._nis[:m]))
+        if self.config.monitor is not None and used:
             alarm = update(self.config.monitor, self.monitor_state, nis, int(use.sum()))
-        if self.config.resample and (alarm or pt.effective_sample_size(w)
-                                     < self.config.ess_threshold * m):
+        if self.config.resample and (alarm or ess < self.config.ess_threshold * m):
             self._resample_move(w, alarm)
         return est
 
@@ -293,7 +327,9 @@ class RBPF:
             # inconsistent (small innovations against a large S favour small-P0 particles).
             self._X = np.zeros_like(self._X)
             self._P = self._own_prior()
-        else:
+            self._steady = False
+            self._warm_left = int(round(cfg.fast_warmup_s * cfg.fs_hz)) if self._fast else 0
+        elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
         self._recompute()
 
@@ -349,6 +385,8 @@ class RBPF:
                 setattr(self, k, type(getattr(self, k))(sc[k]))
         for k, v in arrays.items():
             setattr(self, k, v)
+        if self._steady:
+            self._recompute_gains()   # a function of (theta, v_ref): bit-identical again
         return self
 
     # --------------------------------------------------------------- outputs

@@ -17,6 +17,8 @@ from gateway.model.vehicle import (
     sensor_set,
 )
 
+MODES = ("exact", "fast")
+"""Estimator modes: the exact recursion (reference) and steady-state gains (fast)."""
 AR_NAME = "ar_paper"
 """Name of the optional 4th parameter (Ar in the paper's printed units)."""
 
@@ -39,6 +41,12 @@ class RBPFConfig:
     Ar, when estimated, stays static);
     ``output_every``: default decimation of :meth:`RBPF.run` (one estimate per that many
     samples; :meth:`RBPF.step` always returns one);
+    ``mode``: ``"exact"`` (every particle runs the exact Kalman recursion; the reference)
+    or ``"fast"`` (steady-state gains per particle from a DARE solve at each move or
+    speed-band change, :mod:`gateway.estimator.steady`; the product's default);
+    ``fast_warmup_s``: in fast mode, the exact recursion runs this long after every
+    filter start (the prior's large P converges the states quickly; the steady gains
+    alone would take the slow mode's 8 s time constant);
     ``threads``: numba threads wanted for the kernels (None: all); the process sets them
     once (:func:`gateway.estimator.threads.kernel_threads`: 1 below 16 chunks, where the
     thread hand-off costs more than it saves); the filter never changes numba's globals.
@@ -65,6 +73,8 @@ class RBPFConfig:
     floor_reference: str = "nominal"
     speed_tol: float = 2e-3
     threads: int | None = None
+    mode: str = "exact"
+    fast_warmup_s: float = 2.0
     output_every: int = 1
     resample: bool = True
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
@@ -79,6 +89,8 @@ class RBPFConfig:
         if not 0.0 < self.delta < 1.0:
             raise EstimatorError(f"expected 0 < delta < 1, got {self.delta}")
         sensor_set(self.sensors)
+        if self.mode not in MODES:
+            raise EstimatorError(f"expected mode 'exact' or 'fast', got {self.mode!r}")
         if self.floor_reference not in ("nominal", "value"):
             raise EstimatorError(f"expected floor_reference 'nominal' or 'value', got "
                                  f"{self.floor_reference!r}")

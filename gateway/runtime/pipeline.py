@@ -37,7 +37,8 @@ def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
     return RBPF(RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
                            seed=cfg.seed, ar_paper=cfg.track_roughness,
                            estimate_ar=cfg.estimate_track_roughness,
-                           walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3))
+                           walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3,
+                           mode=cfg.mode))
 
 
 def restore_estimator(blob: bytes) -> Estimator:

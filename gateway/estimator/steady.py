@@ -1,0 +1,399 @@
+"""Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
+
+A particle's covariance and gains depend only on its theta and the speed, never on the
+data, and theta is fixed between resample-moves. Fast mode therefore gives each particle
+the steady state of its Riccati recursion, computed once when its theta or the speed band
+changes, and then steps only the mean::
+
+    x <- Phi x;  for each sensor s:  e_s = y_s - h_s x;  x <- x + g_s e_s / S_s
+    loglik = -(c0 + sum_s e_s^2 / S_s) / 2,     c0 = sum_s log(2 pi S_s)
+
+``g_s = P_s h_s'`` and ``S_s = h_s P_s h_s' + r_s`` are the sequential (scalar, R
+diagonal) update quantities of the exact kernel (:mod:`gateway.estimator.kalman`) at the
+steady predicted covariance ``P-``; their product is the joint update
+``x <- Phi x + K (y - H Phi x)``. About 750 flop per particle and sample, against
+15.7 kflop for the exact recursion.
+
+Why a DARE solve and not "run the recursion until it converges, then freeze": this
+model's Riccati recursion has a closed-loop mode at 0.99987 per sample (3 sensors; 5
+sensors 0.99996), a weakly observed position drift, so P converges at about 0.26 1/s
+and a particle freezes only after 45 s, while resample-moves come every 0.3-2 s
+(measured on branch ``fast``, docs/estimator.md "Fast mode"). Structure-preserving
+doubling (SDA, Chu et al. 2004; Anderson & Moore's doubling) squares the horizon at each
+iteration: 17-19 iterations reach the fixed point to 1e-10, whatever the slow mode.
+
+The unobservable static-yaw set-up (model notes section 2): A(theta) keeps one zero
+eigenvalue with null vector ``v0`` and ``H v0 = 0``; the track's random walks drive it, so
+P grows along ``v0 v0'`` without bound (the exact filter's P does too). The gains do not
+depend on that component, but doubling makes it grow as 2**k and its rounding then
+pollutes ``P h'`` (1e-8 at 17 iterations). Each iteration therefore removes the
+``v0 v0'`` component of the iterate, which provably leaves every other component and the
+gains unchanged (``G_k v0 = 0``, ``v0' A_k = v0'``, so the recursion carries it apart).
+
+SDA for the filter DARE ``P = Phi P Phi' - Phi P H' (H P H' + R)^-1 H P Phi' + Q``:
+``A0 = Phi'``, ``G0 = H' R^-1 H``, ``H0 = Qd``; with ``W = I + G_k H_k``::
+
+    A_k+1 = A_k W^-1 A_k,   G_k+1 = G_k + A_k W^-1 G_k A_k',   H_k+1 = H_k + A_k' H_k W^-1 A_k
+
+``H_k`` is the predicted covariance after ``2**k`` samples from ``Qd``; ``W`` is solved by
+Gauss-Jordan elimination with partial pivoting, per particle. A particle whose iteration
+does not converge within ``MAX_ITER`` or turns non-finite is *dead* for the band: log-
+likelihood -inf and state 0, as in the exact kernel.
+
+Arrays use the lane layout of :mod:`gateway.estimator.lanecode`: ``Phi, Qd, P-`` are
+``(n_chunks, 256 * LANES)``, null vectors ``(n_chunks, 16 * LANES)``, gains ``g``
+``(n_chunks, ny * 16 * LANES)``, ``S`` ``(n_chunks, ny * LANES)``, ``c0`` and per-particle
+outputs ``(n_chunks * LANES,)``. No I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gateway.estimator.kalman import _LOG_2PI, from_lanes, to_lanes
+from gateway.estimator.lanecode import LANES, block_product, compile_kernel, stmt
+from gateway.model.coordinates import NZ
+
+MAX_ITER = 40
+"""Doubling iterations before a particle is declared dead (2**40 samples)."""
+DARE_TOL = 1e-8
+"""A particle has converged when an iteration changes no element of P- H' by more than
+this times its largest, and the change has stalled at rounding (a quarter of the last)
+or is a thousand times smaller."""
+
+
+def _mat(n: int, cols: int | None = None) -> str:
+    return f"(({{i}}) * {cols or n} + ({{j}})) * {LANES}"
+
+
+def _sda_source(n: int) -> list[str]:
+    C = LANES
+    m = _mat(n)
+    z = 3 * n                                   # columns of the augmented [W | A | G]
+    L = ["def sda(F, Q, G0, V, H, r, tol, maxit, P, Gs, Ss, c0, iters):",
+         "    nch = F.shape[0]",
+         "    ny = H.shape[0]",
+         "    for ch in prange(nch):",
+         f"        A = np.empty({n * n * C})",
+         f"        Gm = np.empty({n * n * C})",
+         f"        Hm = np.empty({n * n * C})",
+         f"        An = np.empty({n * n * C})",
+         f"        Gn = np.empty({n * n * C})",
+         f"        Hn = np.empty({n * n * C})",
+         f"        T = np.empty({n * n * C})",
+         f"        Z = np.empty({n * z * C})",
+         f"        ph = np.empty({n * C})",
+         f"        ok = np.ones({C}, np.bool_)",
+         f"        prev = np.full({C}, np.inf)",
+         "        Fc = F[ch]",
+         "        Qc = Q[ch]",
+         "        Vc = V[ch]",
+         f"        for i in range({n}):",
+         f"            for j in range({n}):",
+         f"                for l in range({C}):",
+         f"                    A[(i * {n} + j) * {C} + l] = Fc[(j * {n} + i) * {C} + l]",
+         f"                    Gm[(i * {n} + j) * {C} + l] = G0[i, j]",
+         f"                    Hm[(i * {n} + j) * {C} + l] = Qc[(i * {n} + j) * {C} + l]",
+         f"        for l in range({C}):",
+         f"            iters[ch * {C} + l] = 0",
+         "        it = 0",
+         "        done = False",
+         "        while not done and it < maxit:",
+         "            it += 1"]
+    loops = [f"            for ib in range(0, {n}, 2):",
+             f"                for jb in range(0, {n}, 2):"]
+    upper = loops + ["                    if jb + 1 < ib:", "                        continue"]
+    mirror = m.replace("{i}", "{tmp}").replace("{j}", "{i}").replace("{tmp}", "{j}")
+    zoff = f"(({{i}}) * {z} + ({{j}})) * {C}"
+    # W = I + Gm Hm into Z[:, 0:n]
+    L += loops
+    L += block_product(5, a="Gm", a_row=f"({{r}} * {n} + k) * {C}", b="Hm",
+                       b_row=f"(k * {n} + {{r}}) * {C}", n=n, bi=2, bj=2, init=None,
+                       out=[("Z", zoff)])
+    L += [f"            for i in range({n}):"]
+    L += stmt(4, f"Z[(i * {z} + i) * {C} + {{l}}] += 1.0")
+    L += [f"                for j in range({n}):"]
+    L += stmt(5, f"Z[(i * {z} + {n} + j) * {C} + {{l}}] = A[(i * {n} + j) * {C} + {{l}}]")
+    L += stmt(5, f"Z[(i * {z} + {2 * n} + j) * {C} + {{l}}] = Gm[(i * {n} + j) * {C} + {{l}}]")
+    # Gauss-Jordan with partial pivoting, per lane
+    L += [f"            for c in range({n}):",
+          f"                for l in range({C}):",
+          "                    best = -1.0",
+          "                    piv = c",
+          f"                    for rr in range(c, {n}):",
+          f"                        a = abs(Z[(rr * {z} + c) * {C} + l])",
+          "                        if a > best:",
+          "                            best = a",
+          "                            piv = rr",
+          "                    if not (best > 0.0):",
+          "                        ok[l] = False",
+          "                    if piv != c:",
+          f"                        for j in range(c, {z}):",
+          f"                            t1 = Z[(c * {z} + j) * {C} + l]",
+          f"                            Z[(c * {z} + j) * {C} + l] = Z[(piv * {z} + j) * {C} + l]",
+          f"                            Z[(piv * {z} + j) * {C} + l] = t1"]
+    L += stmt(4, f"d_{{l}} = 1.0 / Z[(c * {z} + c) * {C} + {{l}}]")
+    L += [f"                for j in range(c + 1, {z}):"]
+    L += stmt(5, f"Z[(c * {z} + j) * {C} + {{l}}] *= d_{{l}}")
+    L += [f"                for rr in range({n}):", "                    if rr == c:",
+          "                        continue"]
+    L += stmt(5, f"f_{{l}} = Z[(rr * {z} + c) * {C} + {{l}}]")
+    L += [f"                    for j in range(c + 1, {z}):"]
+    L += stmt(6, f"Z[(rr * {z} + j) * {C} + {{l}}] -= f_{{l}} * Z[(c * {z} + j) * {C} + {{l}}]")
+    # An = A X1, T = A X2 (X1 = Z[:, n:2n], X2 = Z[:, 2n:3n])
+    L += loops
+    L += block_product(5, a="A", a_row=f"({{r}} * {n} + k) * {C}", b="Z",
+                       b_row=f"(k * {z} + {n} + {{r}}) * {C}", n=n, bi=2, bj=2, init=None,
+                       out=[("An", m)])
+    L += loops
+    L += block_product(5, a="A", a_row=f"({{r}} * {n} + k) * {C}", b="Z",
+                       b_row=f"(k * {z} + {2 * n} + {{r}}) * {C}", n=n, bi=2, bj=2,
+                       init=None, out=[("T", m)])
+    # Gn = Gm + T A' (symmetric: upper triangle, mirrored)
+    L += upper
+    L += block_product(5, a="T", a_row=f"({{r}} * {n} + k) * {C}", b="A",
+                       b_row=f"({{r}} * {n} + k) * {C}", n=n, bi=2, bj=2,
+                       init="Gm[" + m + " + {l}]", out=[("Gn", m), ("Gn", mirror)],
+                       guard="{j} >= {i}")
+    # T = A' Hm, Hn = Hm + T X1 (symmetric)
+    L += loops
+    L += block_product(5, a="A", a_row=f"(k * {n} + {{r}}) * {C}", b="Hm",
+                       b_row=f"(k * {n} + {{r}}) * {C}", n=n, bi=2, bj=2, init=None,
+                       out=[("T", m)])
+    L += upper
+    L += block_product(5, a="T", a_row=f"({{r}} * {n} + k) * {C}", b="Z",
+                       b_row=f"(k * {z} + {n} + {{r}}) * {C}", n=n, bi=2, bj=2,
+                       init="Hm[" + m + " + {l}]", out=[("Hn", m), ("Hn", mirror)],
+                       guard="{j} >= {i}")
+    # a particle that has converged keeps its P- (later iterations only add rounding)
+    L += [f"            for l in range({C}):",
+          f"                if iters[ch * {C} + l] > 0:",
+          f"                    for i in range({n * n}):",
+          f"                        Hn[i * {C} + l] = Hm[i * {C} + l]"]
+    # remove the v0 v0' component (unit v0), then measure the change
+    L += stmt(3, "b_{l} = 0.0")
+    L += [f"            for i in range({n}):"]
+    L += stmt(4, "u_{l} = 0.0")
+    L += [f"                for j in range({n}):"]
+    L += stmt(5, f"u_{{l}} += Hn[(i * {n} + j) * {C} + {{l}}] * Vc[j * {C} + {{l}}]")
+    L += stmt(4, f"b_{{l}} += Vc[i * {C} + {{l}}] * u_{{l}}")
+    L += [f"            for i in range({n}):", f"                for j in range({n}):"]
+    L += stmt(5, f"Hn[(i * {n} + j) * {C} + {{l}}] -= b_{{l}} * Vc[i * {C} + {{l}}] "
+                 f"* Vc[j * {C} + {{l}}]")
+    # convergence of what the filter uses, P- H' (the v0 direction is in no gain)
+    L += stmt(3, "dm_{l} = 0.0")
+    L += stmt(3, "hm_{l} = 0.0")
+    L += ["            for s in range(ny):", f"                for i in range({n}):"]
+    L += stmt(5, "u_{l} = 0.0")
+    L += stmt(5, "w_{l} = 0.0")
+    L += [f"                    for j in range({n}):", "                        hk = H[s, j]"]
+    L += stmt(6, f"u_{{l}} += Hn[(i * {n} + j) * {C} + {{l}}] * hk")
+    L += stmt(6, f"w_{{l}} += Hm[(i * {n} + j) * {C} + {{l}}] * hk")
+    L += stmt(5, "dm_{l} = max(dm_{l}, abs(u_{l} - w_{l}))")
+    L += stmt(5, "hm_{l} = max(hm_{l}, abs(u_{l}))")
+    # converged: small, and either at rounding or no longer shrinking (the doubling
+    # converges quadratically; a stalled change is the rounding plateau, about 1e-10)
+    L += ["            done = True"]
+    for lane in range(C):
+        p = f"ch * {C} + {lane}"
+        L += [f"            if iters[{p}] == 0:",
+              f"                if not (dm_{lane} == dm_{lane} and hm_{lane} == hm_{lane}):",
+              f"                    ok[{lane}] = False",
+              f"                elif dm_{lane} <= tol * hm_{lane} and (dm_{lane} <= 1e-3 * tol * "
+              f"hm_{lane} or dm_{lane} >= 0.25 * prev[{lane}]):",
+              f"                    iters[{p}] = it",
+              "                else:",
+              "                    done = False",
+              f"                prev[{lane}] = dm_{lane}"]
+    L += ["            A, An = An, A", "            Gm, Gn = Gn, Gm", "            Hm, Hn = Hn, Hm"]
+    L += ["        if not done:", f"            for l in range({C}):",
+          "                ok[l] = False",
+          "        Pc = P[ch]",
+          f"        for i in range({n * n * C}):",
+          "            Pc[i] = Hm[i]"]
+    # the sequential scalar updates at P-: gains, pivots and log det, on a copy (Hm)
+    L += stmt(2, "q_{l} = 0.0")
+    L += ["        for s in range(ny):", f"            for i in range({n}):"]
+    L += stmt(4, "u_{l} = 0.0")
+    L += [f"                for k in range({n}):", "                    hk = H[s, k]"]
+    L += stmt(5, f"u_{{l}} += Hm[(i * {n} + k) * {C} + {{l}}] * hk")
+    L += stmt(4, f"ph[i * {C} + {{l}}] = u_{{l}}")
+    L += stmt(3, "e_{l} = r[s]")
+    L += [f"            for k in range({n}):", "                hk = H[s, k]"]
+    L += stmt(4, f"e_{{l}} += hk * ph[k * {C} + {{l}}]")
+    L += stmt(3, f"Ss[ch, s * {C} + {{l}}] = e_{{l}}")
+    L += stmt(3, "q_{l} += np.log(e_{l})")
+    L += stmt(3, "e_{l} = 1.0 / e_{l}")
+    L += [f"            for i in range({n}):"]
+    L += stmt(4, f"Gs[ch, (s * {n} + i) * {C} + {{l}}] = ph[i * {C} + {{l}}]")
+    L += stmt(4, f"zk_{{l}} = ph[i * {C} + {{l}}] * e_{{l}}")
+    L += [f"                for j in range({n}):"]
+    L += stmt(5, f"Hm[(i * {n} + j) * {C} + {{l}}] -= zk_{{l}} * ph[j * {C} + {{l}}]")
+    for lane in range(C):
+        p = f"ch * {C} + {lane}"
+        L += [f"        c0[{p}] = q_{lane} + ny * {_LOG_2PI!r}",
+              f"        if not (ok[{lane}] and np.isfinite(c0[{p}])):",
+              f"            c0[{p}] = np.inf",
+              "            for s in range(ny):",
+              f"                Ss[ch, s * {C} + {lane}] = 1.0",
+              f"                for i in range({n}):",
+              f"                    Gs[ch, (s * {n} + i) * {C} + {lane}] = 0.0"]
+    return L
+
+
+def _step_source(n: int) -> list[str]:
+    C = LANES
+    L = ["def kf_steady(X, F, H, y, use, Gs, Ss, c0, ll, nis, dead):",
+         "    nch = X.shape[0]",
+         "    ny = H.shape[0]",
+         "    for ch in prange(nch):",
+         f"        xn = np.empty({n * C})",
+         "        Fc = F[ch]",
+         "        Xc = X[ch]",
+         f"        for i in range({n}):"]
+    L += stmt(3, "xs_{l} = 0.0")
+    L += [f"            for k in range({n}):"]
+    L += stmt(4, f"xs_{{l}} += Fc[(i * {n} + k) * {C} + {{l}}] * Xc[k * {C} + {{l}}]")
+    L += stmt(3, f"xn[i * {C} + {{l}}] = xs_{{l}}")
+    L += stmt(2, "q_{l} = 0.0")
+    L += ["        nused = 0", "        for s in range(ny):", "            if not use[s]:",
+          "                continue", "            nused += 1"]
+    L += stmt(3, "e_{l} = y[s]")
+    L += [f"            for k in range({n}):", "                hk = H[s, k]"]
+    L += stmt(4, f"e_{{l}} -= hk * xn[k * {C} + {{l}}]")
+    L += stmt(3, f"g_{{l}} = 1.0 / Ss[ch, s * {C} + {{l}}]")
+    L += stmt(3, "q_{l} += e_{l} * e_{l} * g_{l}")
+    L += stmt(3, "e_{l} = e_{l} * g_{l}")
+    L += [f"            for i in range({n}):"]
+    L += stmt(4, f"xn[i * {C} + {{l}}] += Gs[ch, (s * {n} + i) * {C} + {{l}}] * e_{{l}}")
+    for lane in range(C):
+        p = f"ch * {C} + {lane}"
+        L += ["        if nused > 0:",
+              f"            ll[{p}] -= 0.5 * (c0[{p}] + q_{lane})",
+              f"            nis[{p}] += q_{lane}",
+              f"        if c0[{p}] == np.inf:",
+              f"            dead[{p}] = True",
+              f"            ll[{p}] = -np.inf",
+              f"            for i in range({n}):",
+              f"                xn[i * {C} + {lane}] = 0.0"]
+    L += [f"        for i in range({n * C}):", "            Xc[i] = xn[i]"]
+    return L
+
+
+_SDA_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8, "
+            "i8, f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], i8[::1])")
+_STEP_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], b1[::1], f8[:, ::1], "
+             "f8[:, ::1], f8[::1], f8[::1], f8[::1], b1[::1])")
+_sda_kernel = compile_kernel("sda", _sda_source(NZ), _SDA_SIG, module=__name__,
+                             source_file=__file__, parallel=True)
+_step_kernel = compile_kernel("kf_steady", _step_source(NZ), _STEP_SIG, module=__name__,
+                              source_file=__file__, parallel=True)
+
+
+@dataclass
+class SteadyGains:
+    """The steady-state filter of every particle, lane layout (module docstring).
+
+    ``p_pred`` (n_chunks, 256 * LANES) the steady predicted covariance P-; ``g``
+    (n_chunks, ny * 16 * LANES) the sequential gains P h_s'; ``s`` (n_chunks, ny * LANES)
+    the sequential innovation variances; ``c0`` (n_chunks * LANES,) log det(2 pi S), +inf
+    for a dead particle; ``iters`` (n_chunks * LANES,) the doubling iteration at which
+    each particle converged (0: it did not).
+    """
+
+    p_pred: np.ndarray
+    g: np.ndarray
+    s: np.ndarray
+    c0: np.ndarray
+    iters: np.ndarray
+
+    @classmethod
+    def empty(cls, n_chunks: int, ny: int) -> SteadyGains:
+        return cls(np.zeros((n_chunks, NZ * NZ * LANES)), np.zeros((n_chunks, ny * NZ * LANES)),
+                   np.ones((n_chunks, ny * LANES)), np.full(n_chunks * LANES, np.inf),
+                   np.zeros(n_chunks * LANES, dtype=np.int64))
+
+
+class NullVectors:
+    """Unit null vectors v0 (m, 16) of A(theta) in filter coordinates, batched.
+
+    A(theta) has rank 15 for every theta (the static yawed set-up, model notes section 2).
+    One component of v0 (the largest at nominal theta) is fixed to 1 and one equation
+    (the one the left null vector weighs most) dropped; the remaining 15 x 15 systems are
+    solved at once, then v0 is normalised.
+    """
+
+    def __init__(self, terms: np.ndarray, theta_nominal: np.ndarray) -> None:
+        from gateway.model.vehicle import theta_basis
+
+        self._terms = np.asarray(terms, dtype=float)
+        self._basis = theta_basis
+        a = np.tensordot(theta_basis(np.asarray(theta_nominal, dtype=float)), self._terms, 1)
+        u, _, vt = np.linalg.svd(a)
+        self._col = int(np.argmax(np.abs(vt[-1])))
+        self._row = int(np.argmax(np.abs(u[:, -1])))
+        self._cols = np.array([j for j in range(NZ) if j != self._col])
+        self._rows = np.array([i for i in range(NZ) if i != self._row])
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        a = np.einsum("mt,tij->mij", self._basis(theta[:, :3]), self._terms)
+        sub = a[:, self._rows][:, :, self._cols]
+        rhs = -a[:, self._rows, self._col]
+        v = np.empty((len(theta), NZ))
+        v[:, self._col] = 1.0
+        v[:, self._cols] = np.linalg.solve(sub, rhs[..., None])[..., 0]
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def steady_gains(phi: np.ndarray, qd: np.ndarray, v0: np.ndarray, H: np.ndarray,
+                 r: np.ndarray, out: SteadyGains, tol: float = DARE_TOL) -> None:
+    """Solve every particle's filter DARE and fill ``out`` in place.
+
+    ``phi``, ``qd`` lane layout (n_chunks, 256 * LANES); ``v0`` lane layout (n_chunks,
+    16 * LANES) unit null vectors; ``H`` (ny, 16); ``r`` (ny,) measurement variances.
+    """
+    g0 = np.ascontiguousarray(H.T @ (H / r[:, None]))
+    _sda_kernel(phi, qd, g0, v0, np.ascontiguousarray(H), np.ascontiguousarray(r),
+                float(tol), MAX_ITER, out.p_pred, out.g, out.s, out.c0, out.iters)
+
+
+def kf_steady(x: np.ndarray, phi: np.ndarray, H: np.ndarray, y: np.ndarray,
+              use: np.ndarray, gains: SteadyGains, ll: np.ndarray, nis: np.ndarray,
+              dead: np.ndarray) -> None:
+    """One steady-gain step for all particles, in place (module docstring).
+
+    ``use`` must select every sensor or none (predict only); a subset needs gains of
+    its own (:func:`kf_subset`). ``ll``, ``nis`` are added to, as in the exact kernel.
+    """
+    _step_kernel(x, phi, H, y, use, gains.g, gains.s, gains.c0, ll, nis, dead)
+
+
+def kf_subset(x: np.ndarray, phi: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray,
+              use: np.ndarray, gains: SteadyGains, n_particles: int, ll: np.ndarray,
+              nis: np.ndarray, dead: np.ndarray) -> None:
+    """A step with only some sensors: the joint update from the steady P- (rare path).
+
+    The exact filter's P would widen a little after a missing sample; fast mode keeps
+    the steady P- (docs/estimator.md "Fast mode").
+    """
+    m = n_particles
+    P = from_lanes(gains.p_pred, m, (NZ, NZ))
+    F = from_lanes(phi, m, (NZ, NZ))
+    X = np.einsum("mij,mj->mi", F, from_lanes(x, m, (NZ,)))
+    hu = H[use]
+    ph = P @ hu.T                                           # (m, 16, k)
+    S = hu @ ph + np.diag(r[use])                           # (m, k, k)
+    e = y[use][None, :] - X @ hu.T                          # (m, k)
+    sol = np.linalg.solve(S, e[..., None])[..., 0]
+    X = X + np.einsum("mik,mk->mi", ph, sol)
+    q = np.einsum("mk,mk->m", e, sol)
+    _, logdet = np.linalg.slogdet(S)
+    c0 = gains.c0[:m]
+    bad = ~np.isfinite(c0)
+    ll[:m] += np.where(bad, -np.inf, -0.5 * (logdet + len(hu) * _LOG_2PI + q))
+    nis[:m] += np.where(bad, 0.0, q)
+    dead[:m] |= bad
+    X[bad] = 0.0
+    x[:] = to_lanes(X)
