@@ -4,7 +4,8 @@
 timed in process CPU time, against the 8,000 frames/s of a full 1 Mbit/s bus.
 ``latency``: the live service on an in-process bus; for every estimate frame it sends,
 the time from the newest sensor frame it includes (its wire timestamp) to the moment
-the estimate frame goes out.
+the estimate frame goes out; and whether the worker kept up (samples dropped at the
+full queue, samples not yet stepped when the traffic ended, the worker's RTF).
 """
 
 from __future__ import annotations
@@ -76,10 +77,16 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
                                                             seed=args.seed))
         with open_node_bus(f"virtual:{channel}") as tx:
             send_live(sim.messages(), tx)
+        stats = service.pipeline.stats() if service.pipeline else None
         service.flags.stop = True
         runner.join(timeout=20)
     steady = np.array(lags[len(lags) // 4:]) * 1e3 if lags else np.array([np.nan])
-    return {"particles": args.particles, "estimate_frames": len(lags),
+    behind = {} if stats is None else {
+        "samples_out": stats.samples_out, "samples_dropped": stats.samples_dropped,
+        "samples_not_stepped_at_end": stats.samples_out - 1 - stats.last_seq_done,
+        "worker_rtf": stats.rtf, "worker_restarts": stats.worker_restarts}
+    return {"particles": args.particles, "mode": cfg.estimator.mode,
+            "seconds": args.seconds, "estimate_frames": len(lags),
             "latency_median_ms": float(np.median(steady)),
             "latency_p95_ms": float(np.percentile(steady, 95)),
-            "latency_max_ms": float(np.max(steady))}
+            "latency_max_ms": float(np.max(steady)), **behind}
