@@ -72,6 +72,10 @@ class Estimator(Protocol):
     def step(self, sample: Sample) -> Estimate:
         """Consume one grid sample and return the posterior after it."""
 
+    def advance(self, sample: Sample) -> None:
+        """Consume one grid sample like :meth:`step`, without summarising the posterior
+        (the same evolution; for the samples between two outputs)."""
+
     def checkpoint(self) -> bytes:
         """The full state as bytes; :meth:`restore` continues exactly from here."""
 

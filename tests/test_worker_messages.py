@@ -46,6 +46,9 @@ class RecordingEstimator:
         n = float(len(self.state["t_s"]))
         return Estimate(sample.t_s, (n,) * 3, (1.0,) * 3, 1.0, updated=sample.update)
 
+    def advance(self, sample: Sample) -> None:
+        self.step(sample)
+
     def checkpoint(self) -> bytes:
         return json.dumps(self.state).encode()
 

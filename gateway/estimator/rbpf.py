@@ -190,6 +190,10 @@ class RBPF:
         """Consume one grid sample; returns the posterior after it."""
         return self._advance(sample, summarize=True) or self._summary(sample.t_s, False)
 
+    def advance(self, sample: Sample) -> None:
+        """Consume one grid sample without summarising (same evolution as :meth:`step`)."""
+        self._advance(sample, summarize=False)
+
     def _validate(self, sample: Sample) -> np.ndarray:
         y = np.asarray(sample.values, dtype=float).reshape(-1)
         if y.shape != (self.ny,):

@@ -186,12 +186,14 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any,
                     if seq <= last_seq:
                         continue
                     t = float(block.t_s[i])
-                    e = est.step(Sample(t, block.values[i], float(block.speed_mps[i]),
-                                        bool(block.update[i])))
+                    sample = Sample(t, block.values[i], float(block.speed_mps[i]),
+                                    bool(block.update[i]))
                     last_seq = seq
-                    if t >= next_out:
-                        _put(out_q, EstimateOut(seq, e))
+                    if t >= next_out:        # summarise only the samples that go out
+                        _put(out_q, EstimateOut(seq, est.step(sample)))
                         next_out = t + settings.output_interval_s
+                    else:
+                        est.advance(sample)
                     if t >= next_ckpt:
                         if math.isfinite(next_ckpt):
                             _put(out_q, CheckpointOut(seq, est.checkpoint()))
@@ -223,8 +225,8 @@ def _bridge_gap(est: Estimator, block: SampleBlock, missing: int, grid_dt_s: flo
         return
     nan = np.full(block.values.shape[1], np.nan)
     for j in range(missing, 0, -1):
-        est.step(Sample(float(block.t_s[0]) - j * grid_dt_s, nan,
-                        float(block.speed_mps[0]), False))
+        est.advance(Sample(float(block.t_s[0]) - j * grid_dt_s, nan,
+                           float(block.speed_mps[0]), False))
 
 
 @dataclass
