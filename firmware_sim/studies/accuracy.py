@@ -12,7 +12,9 @@ Produces the tables of docs/estimator.md (JSON lines on stdout, one per run):
 - ``compare``: fast mode against exact mode, paired (same data, same filter seed): the
   paper scenario over seeds 0-9, 3 and 5 sensors, 20 s, checkpoints 3, 5 and 20 s, and
   the step case over ``--step-seeds``; then summary rows (paired gap
-  |mean_fast - mean_exact| / sigma_exact, coverage, detection delay) per mode.
+  |mean_fast - mean_exact| / sigma_exact, coverage, detection delay) per mode;
+  ``--reseeded`` adds an exact run with another filter seed, whose gap to the exact run
+  is the Monte Carlo noise floor of the paired gap.
 
 ``--mode`` picks the estimator mode(s): ``exact``, ``fast`` or ``both`` (default: both for
 ``compare``, exact, the reference, for the others). Every row records its mode. Each row
@@ -50,6 +52,8 @@ COMPARE_AT_S = (3.0, 5.0, 20.0)
 CSY_FAILED = 10e3
 """Csy after the step fault, N s/m (40 -> 10 kNs/m)."""
 SETTLE_REL = 0.15
+RESEED_OFFSET = 100
+"""compare --reseeded: the second exact run's filter seed is seed + this."""
 
 
 def make_data(theta_t: np.ndarray, sensors: int, seed: int,
@@ -142,14 +146,23 @@ def _base(particles: int, sensors: int, seed: int, mode: str, **extra: Any) -> d
                 **extra)
 
 
+def _gap(a: dict[str, Any], ref: dict[str, Any], key: str) -> list[float]:
+    """|mean_a - mean_ref| / sigma_ref per parameter at checkpoint ``key``."""
+    return [abs(ma - mr) / sr for ma, mr, sr in
+            zip(a[key]["mean"], ref[key]["mean"], ref[key]["std"], strict=True)]
+
+
 def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, seconds: float,
-            modes: Sequence[str] = ("fast", "exact")) -> Iterator[dict[str, Any]]:
+            modes: Sequence[str] = ("fast", "exact"), reseeded: bool = False
+            ) -> Iterator[dict[str, Any]]:
     """Paired runs of the paper scenario, one row per (seed, sensors, mode), a ``pair`` row
     per (seed, sensors) when both modes run, then ``compare_summary`` rows.
 
     Both modes see the same data (seed 1000 + seed) and filter seed. The gap of a
     parameter is |mean_fast - mean_exact| / sigma_exact at a checkpoint (3, 5 and 20 s,
-    those within ``seconds``; the end when none is).
+    those within ``seconds``; the end when none is). ``reseeded`` adds the Monte Carlo
+    noise floor: an exact run with filter seed ``seed + RESEED_OFFSET`` (role
+    ``exact_reseeded``) and its gap to the exact run.
     """
     at_s = [t for t in COMPARE_AT_S if t <= seconds] or [seconds]
     truth = THETA_SEC42.as_array()
@@ -160,22 +173,26 @@ def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, second
         for ns in sensors:
             Y = make_data(np.repeat(truth[None], n, 0), ns, seed)
             by_mode = {}
-            for mode in modes:
-                est, filt, wall = run_filter(Y, RBPFConfig(**_base(particles, ns, seed, mode)))
-                row = {"what": "compare", "mode": mode, "seed": seed, "sensors": ns,
+            roles = [(m, m, seed) for m in modes]
+            if reseeded:
+                roles.append(("exact_reseeded", "exact", seed + RESEED_OFFSET))
+            for role, mode, fseed in roles:
+                est, filt, wall = run_filter(Y, RBPFConfig(**_base(particles, ns, fseed, mode)))
+                row = {"what": "compare", "mode": mode, "role": role, "seed": seed,
+                       "filter_seed": fseed, "sensors": ns,
                        "particles": particles, "seconds": seconds,
                        **summarise(est, truth, at_s), "resamples": filt.n_resamples,
                        "detections": filt.n_detections, "wall_s": wall}
                 runs.append(row)
-                by_mode[mode] = row
+                by_mode[role] = row
                 yield row
-            if {"fast", "exact"} <= by_mode.keys():
-                f, x = by_mode["fast"], by_mode["exact"]
+            if "exact" in by_mode and len(by_mode) > 1:
+                x = by_mode["exact"]
                 pair = {"what": "pair", "seed": seed, "sensors": ns, "particles": particles,
-                        **{f"{t:g}s": {"gap_sigma": [
-                            abs(mf - mx) / sx for mf, mx, sx in
-                            zip(f[f"{t:g}s"]["mean"], x[f"{t:g}s"]["mean"],
-                                x[f"{t:g}s"]["std"], strict=True)]} for t in at_s}}
+                        **{f"{t:g}s": {f"{'gap' if r == 'fast' else 'reseed_gap'}_sigma":
+                                       _gap(by_mode[r], x, f"{t:g}s")
+                                       for r in ("fast", "exact_reseeded") if r in by_mode}
+                           for t in at_s}}
                 pairs.append(pair)
                 yield pair
     yield from compare_summary(runs, pairs, at_s)
@@ -184,14 +201,16 @@ def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, second
 def compare_summary(runs: list[dict[str, Any]], pairs: list[dict[str, Any]],
                     at_s: Sequence[float]) -> Iterator[dict[str, Any]]:
     """Per sensor set and checkpoint: per mode the error and sigma statistics and the
-    coverage counts; over the pairs the median and max gap per parameter."""
+    coverage counts; over the pairs the median and max gap per parameter, and the mean
+    signed gap with its standard error (a systematic offset of the fast mode)."""
     for ns in sorted({r["sensors"] for r in runs}):
         for t in at_s:
             key = f"{t:g}s"
             row: dict[str, Any] = {"what": "compare_summary", "sensors": ns, "at": key,
                                    "params": list(PARAM_NAMES)}
-            for mode in ("fast", "exact"):
-                rs = [r[key] for r in runs if r["sensors"] == ns and r["mode"] == mode]
+            for mode in ("fast", "exact", "exact_reseeded"):
+                rs = [r[key] for r in runs if r["sensors"] == ns
+                      and r.get("role", r["mode"]) == mode]
                 if not rs:
                     continue
                 err = np.abs([r["err_pct"] for r in rs])
@@ -203,13 +222,29 @@ def compare_summary(runs: list[dict[str, Any]], pairs: list[dict[str, Any]],
                              "max_sigma_pct": list(np.round(sig.max(0), 2)),
                              "within_2sigma": [int(v) for v in
                                                np.sum([r["within_2sigma"] for r in rs], 0)]}
-            gaps = np.array([p[key]["gap_sigma"] for p in pairs if p["sensors"] == ns])
-            if len(gaps):
-                row["gap_sigma"] = {"pairs": len(gaps),
-                                    "median": list(np.round(np.median(gaps, 0), 3)),
-                                    "max": list(np.round(gaps.max(0), 3)),
-                                    "within_0.3": [int(v) for v in np.sum(gaps <= 0.3, 0)]}
+            for role, name in (("fast", "bias_sigma"), ("exact_reseeded", "reseed_bias_sigma")):
+                d = _signed(runs, ns, key, role)
+                if len(d) > 1:
+                    row[name] = {"pairs": len(d), "mean": list(np.round(d.mean(0), 3)),
+                                 "std_err": list(np.round(d.std(0, ddof=1) / np.sqrt(len(d)),
+                                                          3))}
+            for g in ("gap_sigma", "reseed_gap_sigma"):
+                gaps = np.array([p[key][g] for p in pairs if p["sensors"] == ns
+                                 and g in p[key]])
+                if len(gaps):
+                    row[g] = {"pairs": len(gaps),
+                              "median": list(np.round(np.median(gaps, 0), 3)),
+                              "max": list(np.round(gaps.max(0), 3)),
+                              "within_0.3": [int(v) for v in np.sum(gaps <= 0.3, 0)]}
             yield row
+
+
+def _signed(runs: list[dict[str, Any]], sensors: int, key: str, role: str) -> np.ndarray:
+    """(mean_role - mean_exact) / sigma_exact (pairs, 3) over the seeds run in both roles."""
+    by = {(r["seed"], r.get("role", r["mode"])): r[key] for r in runs if r["sensors"] == sensors}
+    seeds = sorted(s for s, rl in by if rl == role and (s, "exact") in by)
+    return np.array([(np.array(by[s, role]["mean"]) - by[s, "exact"]["mean"])
+                     / np.array(by[s, "exact"]["std"]) for s in seeds]).reshape(-1, 3)
 
 
 def step_summary(rows: list[dict[str, Any]]) -> Iterator[dict[str, Any]]:
@@ -254,6 +289,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="compare: seeds of the step case (3 sensors)")
     ap.add_argument("--step-seconds", type=float, default=18.0,
                     help="compare: length of the step runs in s")
+    ap.add_argument("--reseeded", action="store_true",
+                    help="compare: add an exact run with another filter seed (the Monte "
+                         "Carlo noise floor of the gap)")
     ap.add_argument("--floor-reference", choices=("nominal", "value"),
                     default=RBPFConfig.floor_reference)
     ap.add_argument("--ess-threshold", type=float, default=RBPFConfig.ess_threshold,
@@ -268,7 +306,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     seconds = args.seconds if args.seconds is not None else (20.0 if is_cmp else 5.0)
     fault_at = args.fault_at if args.fault_at is not None else (8.0 if is_cmp else 10.0)
     if is_cmp:
-        for row in compare(seeds, args.sensors, args.particles, seconds, modes):
+        for row in compare(seeds, args.sensors, args.particles, seconds, modes,
+                           args.reseeded):
             _print(row)
         steps = [step_run(seed, 3, args.step_seconds, fault_at,
                           _base(args.particles, 3, seed, mode))
