@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from firmware_sim.studies.accuracy import compare
 from gateway.model.vehicle import THETA_SEC42
-
-pytestmark = pytest.mark.slow
 
 
 def test_paired_fast_and_exact_recover_the_truth_and_agree() -> None:
