@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 
@@ -72,24 +73,34 @@ def update(cfg: MonitorConfig, state: np.ndarray, nis: float, dof: int) -> bool:
 
     ``state`` (STATE_LEN,) is updated in place.
     """
+    return bool(update_nb(cfg.block_len, cfg.k_sigma, cfg.h_sigma, cfg.warmup_blocks,
+                          cfg.learn_blocks, state, float(nis), int(dof)))
+
+
+@numba.njit(cache=True, nogil=True)
+def update_nb(block_len: int, k_sigma: float, h_sigma: float, warmup_blocks: int,
+              learn_blocks: int, state: np.ndarray, nis: float, dof: int) -> bool:
+    """:func:`update` with the configuration spelled out, callable from compiled code."""
     if dof <= 0 or not np.isfinite(nis):
         return False
     state[_NIS] += nis
     state[_DOF] += dof
     state[_N] += 1
-    if state[_N] < cfg.block_len:
+    if state[_N] < block_len:
         return False
     r = state[_NIS] / state[_DOF]
     chi_var = 2.0 / state[_DOF]
-    state[_NIS] = state[_DOF] = state[_N] = 0.0
+    state[_NIS] = 0.0
+    state[_DOF] = 0.0
+    state[_N] = 0.0
     state[_BLOCKS] += 1
     b = state[_BLOCKS]
-    if b <= cfg.warmup_blocks:
+    if b <= warmup_blocks:
         return False
-    if b <= cfg.warmup_blocks + cfg.learn_blocks and state[_LEARN_SUM] >= 0.0:
+    if b <= warmup_blocks + learn_blocks and state[_LEARN_SUM] >= 0.0:
         state[_LEARN_SUM] += r
         state[_LEARN_SQ] += r * r
-        m = b - cfg.warmup_blocks
+        m = b - warmup_blocks
         mean = state[_LEARN_SUM] / m
         var = max(state[_LEARN_SQ] / m - mean * mean, 0.0)
         state[_VAR] = var
@@ -99,8 +110,8 @@ def update(cfg: MonitorConfig, state: np.ndarray, nis: float, dof: int) -> bool:
     sigma = np.sqrt(max(chi_var, state[_VAR]))
     z = (r - mu) / sigma
     state[_LAST_Z] = z
-    state[_G] = max(0.0, state[_G] + z - cfg.k_sigma)
-    return bool(state[_G] > cfg.h_sigma)
+    state[_G] = max(0.0, state[_G] + z - k_sigma)
+    return state[_G] > h_sigma
 
 
 def cusum(state: np.ndarray) -> float:

@@ -12,6 +12,8 @@ import numba
 import numpy as np
 from scipy.stats import qmc
 
+from gateway.estimator.monitor import update_nb
+
 
 def shrinkage(delta: float) -> float:
     """Liu-West shrinkage a = (3 delta - 1) / (2 delta)."""
@@ -145,3 +147,33 @@ def absorb(logw: np.ndarray, ll: np.ndarray, nis: np.ndarray, w_prev: np.ndarray
         w[i] /= total
         sq += w[i] * w[i]
     return out, w, top + np.log(total), 1.0 / sq, nisbar
+
+
+@numba.njit(cache=True, nogil=True)
+def absorb_block(logw: np.ndarray, LL: np.ndarray, NIS: np.ndarray, w_prev: np.ndarray,
+                 ess_min: float, monitor_on: bool, dof: np.ndarray, block_len: int,
+                 k_sigma: float, h_sigma: float, warmup_blocks: int, learn_blocks: int,
+                 monitor_state: np.ndarray
+                 ) -> tuple[int, np.ndarray, np.ndarray]:
+    """:func:`absorb` and the innovation monitor over K samples until one needs more.
+
+    ``LL``, ``NIS`` (K, >= N); ``dof`` (K,) sensors used per sample. Sample t is taken
+    while it leaves the weights finite, raises no monitor alarm and keeps the ESS at or
+    above ``ess_min``; the first sample that does not is left untouched (the monitor
+    state too) for the caller's full step. Returns (samples taken, log-weights,
+    normalised weights after them); ``monitor_state`` is updated in place.
+    """
+    n = logw.shape[0]
+    w = w_prev
+    for t in range(LL.shape[0]):
+        new, wn, total, ess, nis = absorb(logw, LL[t, :n], NIS[t, :n], w)
+        if not np.isfinite(total) or ess < ess_min:
+            return t, logw, w
+        if monitor_on and dof[t] > 0:
+            saved = monitor_state.copy()
+            if update_nb(block_len, k_sigma, h_sigma, warmup_blocks, learn_blocks,
+                         monitor_state, nis, dof[t]):
+                monitor_state[:] = saved
+                return t, logw, w
+        logw, w = new, wn
+    return LL.shape[0], logw, w

@@ -23,6 +23,7 @@ The core does no I/O and reads no clock; randomness comes from the Generator giv
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections.abc import Iterable
 from dataclasses import asdict
@@ -39,7 +40,14 @@ from gateway.estimator.kalman import from_lanes, kf_step, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
 from gateway.estimator.rbpf_config import AR_NAME, RBPFConfig
-from gateway.estimator.steady import NullVectors, SteadyGains, kf_steady, kf_subset, steady_gains
+from gateway.estimator.steady import (
+    NullVectors,
+    SteadyGains,
+    kf_steady,
+    kf_steady_block,
+    kf_subset,
+    steady_gains,
+)
 from gateway.model.coordinates import NZ, FilterCoords
 from gateway.model.vehicle import (
     IDX,
@@ -54,6 +62,8 @@ from gateway.records import Estimate, Sample
 __all__ = ["RBPF", "RBPFConfig", "AR_NAME", "PRIOR_SAMPLES"]
 
 log = logging.getLogger(__name__)
+MAX_WINDOW = 4096
+"""Samples :meth:`RBPF.run` holds at once (outputs further apart are read in pieces)."""
 PRIOR_SAMPLES = 2**13
 """The state prior is the covariance this many samples after a start from rest."""
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
@@ -261,22 +271,100 @@ class RBPF:
         """Feed samples; returns an estimate every ``output_every`` samples (and the last).
 
         Same filter evolution as calling :meth:`step` on each sample; only the outputs
-        in between are not summarised. Default: ``config.output_every``.
+        in between are not summarised. Default: ``config.output_every``. In fast mode's
+        steady phase, runs of uneventful samples (every sensor or none, speed in band,
+        no resampling, no alarm) go through one compiled call (:meth:`_run_block`),
+        bit-identical to stepping them one by one.
         """
         every = self.config.output_every if output_every is None else int(output_every)
         if every < 1:
             raise EstimatorError(f"expected output_every >= 1, got {every}")
         out: list[Estimate] = []
+        source = iter(samples)
+        k = 0                                   # samples consumed
         last: Sample | None = None
-        for k, s in enumerate(samples):
-            est = self._advance(s, summarize=(k + 1) % every == 0)
-            if est is not None:
-                out.append(est)
-            last = s
+        while window := list(itertools.islice(source, min(every - k % every, MAX_WINDOW))):
+            j = 0
+            while j < len(window):
+                took = self._run_block(window[j:]) if self._steady else 0
+                if took:
+                    j, k = j + took, k + took
+                    if k % every == 0:
+                        out.append(self._summary(window[j - 1].t_s, self._was_used(window[j - 1])))
+                    continue
+                est = self._advance(window[j], summarize=(k + 1) % every == 0)
+                if est is not None:
+                    out.append(est)
+                j, k = j + 1, k + 1
+            last = window[-1]
         if last is not None and (not out or out[-1].t_s != last.t_s):
-            used = bool(last.update) and bool(np.isfinite(np.asarray(last.values)).any())
-            out.append(self._summary(last.t_s, used))
+            out.append(self._summary(last.t_s, self._was_used(last)))
         return out
+
+    @staticmethod
+    def _was_used(sample: Sample) -> bool:
+        return bool(sample.update) and bool(np.isfinite(np.asarray(sample.values)).any())
+
+    def _run_block(self, samples: list[Sample]) -> int:
+        """Steady phase: step the leading uneventful samples in one compiled call.
+
+        Returns how many were taken (0: the first needs the full per-sample path). A
+        sample is eligible when its sensors are all used or none, its speed is in the
+        current band and it is well formed; the weights loop
+        (:func:`gateway.estimator.particles.absorb_block`) then stops before the first
+        sample that resamples, raises an alarm or empties the weights, and the states
+        are stepped again up to there from a copy.
+        """
+        cfg = self.config
+        k = len(samples)
+        Y = np.zeros((k, self.ny))
+        full = np.zeros(k, dtype=bool)
+        tol = cfg.speed_tol * self._v_ref
+        for j, smp in enumerate(samples):
+            y = np.asarray(smp.values, dtype=float).reshape(-1)
+            v = float(smp.speed_mps)
+            if y.shape != (self.ny,) or not (abs(v - self._v_ref) <= tol):
+                k = j
+                break
+            fin = np.isfinite(y)
+            if bool(smp.update) and fin.all():
+                Y[j], full[j] = y, True
+            elif bool(smp.update) and fin.any():
+                k = j
+                break
+        if k == 0:
+            return 0
+        Y, full = Y[:k], full[:k]
+        m = cfg.n_particles
+        width = self._nch * LANES
+        LL, NIS = np.empty((k, width)), np.empty((k, width))
+        x0 = self._X.copy()
+        kf_steady_block(self._X, self._phi, self._H, Y, full, self._gains, LL, NIS)
+        mon = cfg.monitor
+        ess_min = cfg.ess_threshold * m if cfg.resample else -1.0
+        dof = np.where(full, self.ny, 0).astype(np.int64)
+        if mon is None:
+            took, logw, w = pt.absorb_block(self.logw, LL, NIS, self._weights(), ess_min,
+                                            False, dof, 1, 0.0, 0.0, 0, 0,
+                                            self.monitor_state)
+        else:
+            took, logw, w = pt.absorb_block(self.logw, LL, NIS, self._weights(), ess_min,
+                                            True, dof, mon.block_len, mon.k_sigma,
+                                            mon.h_sigma, mon.warmup_blocks, mon.learn_blocks,
+                                            self.monitor_state)
+        if took < k:                      # step the states again up to the event
+            self._X = x0
+            if took:
+                kf_steady_block(self._X, self._phi, self._H, Y[:took], full[:took],
+                                self._gains, LL[:took], NIS[:took])
+        if took:
+            self.logw = logw
+            self._w_cache, self._w_of = w, logw
+            self.t_s = float(samples[took - 1].t_s)
+            self.n_steps += took
+            self.since_move += took
+            self.updated_since_move += int(full[:took].sum())
+        return took
 
     # ------------------------------------------------------- resampling etc.
     def _floor_log(self) -> np.ndarray:

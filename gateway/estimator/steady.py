@@ -371,12 +371,60 @@ def _step_source(n: int) -> list[str]:
     return L
 
 
+def _block_source(n: int) -> list[str]:
+    """:func:`_step_source` for K samples at once: each chunk runs all of them in turn
+    (its state stays in cache), writing each sample's log-likelihood and NIS."""
+    C = LANES
+    L = ["def kf_steady_block(X, F, H, Y, full, Gs, Ss, c0, LL, NIS):",
+         "    nch = X.shape[0]",
+         "    ny = H.shape[0]",
+         "    nt = Y.shape[0]",
+         "    for ch in prange(nch):",
+         f"        xn = np.empty({n * C})",
+         "        Fc = F[ch]",
+         "        Xc = X[ch]",
+         "        for t in range(nt):",
+         f"            for i in range({n}):"]
+    L += stmt(4, "xs_{l} = 0.0")
+    L += [f"                for k in range({n}):"]
+    L += stmt(5, f"xs_{{l}} += Fc[(i * {n} + k) * {C} + {{l}}] * Xc[k * {C} + {{l}}]")
+    L += stmt(4, f"xn[i * {C} + {{l}}] = xs_{{l}}")
+    L += stmt(3, "q_{l} = 0.0")
+    L += ["            if full[t]:", "                for s in range(ny):"]
+    L += stmt(5, "e_{l} = Y[t, s]")
+    L += [f"                    for k in range({n}):", "                        hk = H[s, k]"]
+    L += stmt(6, f"e_{{l}} -= hk * xn[k * {C} + {{l}}]")
+    L += stmt(5, f"g_{{l}} = 1.0 / Ss[ch, s * {C} + {{l}}]")
+    L += stmt(5, "q_{l} += e_{l} * e_{l} * g_{l}")
+    L += stmt(5, "e_{l} = e_{l} * g_{l}")
+    L += [f"                    for i in range({n}):"]
+    L += stmt(6, f"xn[i * {C} + {{l}}] += Gs[ch, (s * {n} + i) * {C} + {{l}}] * e_{{l}}")
+    for lane in range(C):
+        p = f"ch * {C} + {lane}"
+        L += ["            if full[t]:",
+              f"                LL[t, {p}] = 0.0 - 0.5 * (c0[{p}] + q_{lane})",
+              f"                NIS[t, {p}] = q_{lane}",
+              "            else:",
+              f"                LL[t, {p}] = 0.0",
+              f"                NIS[t, {p}] = 0.0",
+              f"            if c0[{p}] == np.inf:",
+              f"                LL[t, {p}] = -np.inf",
+              f"                for i in range({n}):",
+              f"                    xn[i * {C} + {lane}] = 0.0"]
+    L += [f"            for i in range({n * C}):", "                Xc[i] = xn[i]"]
+    return L
+
+
 _SDA_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8, "
             "i8, f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], i8[::1])")
 _STEP_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], b1[::1], f8[:, ::1], "
              "f8[:, ::1], f8[::1], f8[::1], f8[::1], b1[::1])")
 _sda_kernel = compile_kernel("sda", _sda_source(NZ), _SDA_SIG, module=__name__,
                              source_file=__file__, parallel=True)
+_BLOCK_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], b1[::1], f8[:, ::1], "
+              "f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1])")
+_block_kernel = compile_kernel("kf_steady_block", _block_source(NZ), _BLOCK_SIG,
+                               module=__name__, source_file=__file__, parallel=True)
 _step_kernel = compile_kernel("kf_steady", _step_source(NZ), _STEP_SIG, module=__name__,
                               source_file=__file__, parallel=True)
 
@@ -457,6 +505,16 @@ def kf_steady(x: np.ndarray, phi: np.ndarray, H: np.ndarray, y: np.ndarray,
     its own (:func:`kf_subset`). ``ll``, ``nis`` are added to, as in the exact kernel.
     """
     _step_kernel(x, phi, H, y, use, gains.g, gains.s, gains.c0, ll, nis, dead)
+
+
+def kf_steady_block(x: np.ndarray, phi: np.ndarray, H: np.ndarray, Y: np.ndarray,
+                    full: np.ndarray, gains: SteadyGains, LL: np.ndarray, NIS: np.ndarray
+                    ) -> None:
+    """:func:`kf_steady` for K samples in one call, in place: ``Y`` (K, ny) with ``full``
+    (K,) True where every sensor is used, False for predict-only samples; ``LL``, ``NIS``
+    (K, n_chunks * LANES) receive each sample's log-likelihood and NIS (set, not added).
+    Bit-identical to K calls of :func:`kf_steady` (same arithmetic, same order)."""
+    _block_kernel(x, phi, H, Y, full, gains.g, gains.s, gains.c0, LL, NIS)
 
 
 def kf_subset(x: np.ndarray, phi: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray,
