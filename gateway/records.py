@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -75,6 +76,11 @@ class Estimator(Protocol):
     def advance(self, sample: Sample) -> None:
         """Consume one grid sample like :meth:`step`, without summarising the posterior
         (the same evolution; for the samples between two outputs)."""
+
+    def run(self, samples: Iterable[Sample], output_every: int | None = None
+            ) -> list[Estimate]:
+        """Consume samples in order (the same evolution as :meth:`step` on each);
+        returns the posterior after every ``output_every``-th sample and after the last."""
 
     def checkpoint(self) -> bytes:
         """The full state as bytes; :meth:`restore` continues exactly from here."""

@@ -32,6 +32,11 @@ class CountingEstimator:
     def advance(self, sample: Sample) -> None:
         self.step(sample)
 
+    def run(self, samples: list[Sample], output_every: int | None = None) -> list[Estimate]:
+        out = [self.step(s) for s in samples]
+        every = output_every or 1
+        return [e for k, e in enumerate(out) if (k + 1) % every == 0 or k == len(out) - 1]
+
     def checkpoint(self) -> bytes:
         return str(self.n).encode()
 

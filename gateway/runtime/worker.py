@@ -181,23 +181,27 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any,
                 if last_seq >= 0 and block.seq0 > last_seq + 1:
                     _bridge_gap(est, block, block.seq0 - last_seq - 1, settings.grid_dt_s)
                     last_seq = block.seq0 - 1
-                for i in range(len(block.t_s)):
-                    seq = block.seq0 + i
-                    if seq <= last_seq:
-                        continue
-                    t = float(block.t_s[i])
-                    sample = Sample(t, block.values[i], float(block.speed_mps[i]),
-                                    bool(block.update[i]))
+                # runs of samples up to the next output or checkpoint go in one call
+                # (Estimator.run: the same evolution as stepping them one by one)
+                i, n = max(0, last_seq + 1 - block.seq0), len(block.t_s)
+                while i < n:
+                    j = i
+                    while j < n - 1 and block.t_s[j] < next_out and block.t_s[j] < next_ckpt:
+                        j += 1
+                    run = [Sample(float(block.t_s[k]), block.values[k],
+                                  float(block.speed_mps[k]), bool(block.update[k]))
+                           for k in range(i, j + 1)]
+                    e = est.run(run, output_every=len(run))[-1]
+                    seq, t = block.seq0 + j, float(block.t_s[j])
                     last_seq = seq
-                    if t >= next_out:        # summarise only the samples that go out
-                        _put(out_q, EstimateOut(seq, est.step(sample)))
+                    if t >= next_out:
+                        _put(out_q, EstimateOut(seq, e))
                         next_out = t + settings.output_interval_s
-                    else:
-                        est.advance(sample)
                     if t >= next_ckpt:
                         if math.isfinite(next_ckpt):
                             _put(out_q, CheckpointOut(seq, est.checkpoint()))
                         next_ckpt = t + settings.checkpoint_interval_s
+                    i = j + 1
                 _put(out_q, Progress(last_seq))
             case Start():
                 raise EstimatorError(f"expected one Start per worker, got another "
