@@ -1,7 +1,8 @@
-"""The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, exact KFs.
+"""The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines by a few: the filter's step, resample-move and checkpoint share its
-state; its kernels, config, particles and monitor are already separate modules.
+Over 400 lines (540): the filter's step, its block path, resample-move and checkpoint
+share its state; its kernels (exact, steady), config, particles and monitor are already
+separate modules.
 
 Each of m particles carries theta = (Csy, Csay, lambda) [and optionally Ar] and its own
 exact Kalman filter of the vehicle model (16 filter states, :mod:`gateway.model.coordinates`).
@@ -12,6 +13,12 @@ moved by the Liu-West kernel compounded over the samples since the last move
 (:func:`gateway.estimator.particles.liu_west_move`); only then are Phi(theta, v) and Qd(theta, v)
 recomputed, exactly and batched (:mod:`gateway.estimator.batch_expm`). Between moves each
 particle is an exact Kalman filter for fixed theta. See docs/estimator.md.
+
+Modes (``config.mode``): ``"exact"`` runs that recursion throughout; ``"fast"`` runs it
+for ``fast_warmup_s`` after every filter start, then gives every particle the steady
+state of its recursion (a DARE solve per move or speed band,
+:mod:`gateway.estimator.steady`) and steps only the means; :meth:`RBPF.run` then takes
+runs of uneventful samples in one compiled call.
 
 Speed: the model is evaluated at a reference speed v_ref; when a sample's speed differs
 from v_ref by more than ``speed_tol`` (relative), v_ref becomes that speed and Phi, Qd
