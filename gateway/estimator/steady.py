@@ -1,5 +1,8 @@
 """Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
 
+Over 400 lines (550): the generators of three lane kernels (the doubling with its Newton
+step, the single step, the block of steps) and their typed wrappers, one concern.
+
 A particle's covariance and gains depend only on its theta and the speed, never on the
 data, and theta is fixed between resample-moves. Fast mode therefore gives each particle
 the steady state of its Riccati recursion, computed once when its theta or the speed band
