@@ -44,7 +44,7 @@ BUS_KEYS = {"interface", "channel", "state", "open", "load_pct", "error_frames",
 STATUS_KEYS = {"state", "uptime_s", "version", "data_time_s", "worker", "bus",
                "active_alerts", "console", "front_end", "state_dir"}
 FRONT_END_KEYS = {"late", "gaps", "resyncs", "clock_steps", "horizon", "two_senders",
-                  "two_sender_events"}
+                  "two_sender_events", "nodes"}
 ROW_KEYS = {"t_s", "time", "estimates", "event"}
 
 

@@ -104,7 +104,8 @@ def _by_reason(counts: Any) -> str:
 
 def front_end(fe: Mapping[str, Any]) -> str:
     """Two lines: late frames and gap points by reason; resyncs, clock steps, receive
-    times beyond a horizon (if any) and two senders (now, or past episodes)."""
+    times beyond a horizon (if any) and two senders (now, or past episodes); then one
+    line per node (:func:`node_timing`)."""
     senders = fe.get("two_senders") or []
     rest = f"resyncs {_word(fe.get('resyncs'))}, clock steps {_word(fe.get('clock_steps'))}"
     horizon = _by_reason(fe.get("horizon"))
@@ -114,7 +115,20 @@ def front_end(fe: Mapping[str, Any]) -> str:
     rest += (f", TWO SENDERS on {', '.join(map(_word, senders))}" if senders
              else f", two senders: none now ({episodes} episodes)")
     return (f"late {_by_reason(fe.get('late'))}, gaps {_by_reason(fe.get('gaps'))}\n"
-            f"           {rest}")
+            f"           {rest}{node_timing(fe.get('nodes'))}")
+
+
+def node_timing(nodes: Any) -> str:
+    """One line per node (message): fitted drift in ppm and grid phase in us, then its
+    late, missing and reordered samples; "" when there are none."""
+    if not isinstance(nodes, Mapping):
+        return ""
+    return "".join(
+        f"\n           {_word(m):<9} drift {num(_get(t, 'drift_ppm'), '+.1f')} ppm, "
+        f"phase {num(_get(t, 'grid_phase_us'), '.0f')} us, "
+        f"late {_word(_get(t, 'late_samples'))}, missing {_word(_get(t, 'missing_samples'))}, "
+        f"reordered {_word(_get(t, 'reordered_samples'))}"
+        for m, t in nodes.items())
 
 
 def _limits(th: Any, scale_pct: bool = True) -> str:

@@ -95,7 +95,7 @@ class FrontEnd:
             sample_idx_jumps={n: m.sample_idx_jumps for n, m in v.messages.items()},
             two_senders=v.two_senders(),
             two_sender_events={n: m.sender.state.events for n, m in v.messages.items()},
-            horizon=r.horizon, grid_jump_points=r.grid_jump_points)
+            horizon=r.horizon, grid_jump_points=r.grid_jump_points, nodes=r.nodes)
 
     def on_time(self, now_s: float) -> list[Sample]:
         """Advance time (receive clock): deadlines, message timeouts."""

@@ -77,6 +77,7 @@ from gateway.frontend.clocksync import (
     unwrap,
 )
 from gateway.frontend.lowpass import Lowpass, LowpassState, design_lowpass, lowpass_step
+from gateway.frontend.stats import NodeTiming
 from gateway.model.vehicle import SENSORS_5
 from gateway.records import DecodedFrame, GridSample, Quality
 
@@ -189,6 +190,27 @@ class NodeState:
     excluded: bool = False
     k_stored: int = _EMPTY
     """Highest sample index stored in the ring."""
+    late_samples: int = 0
+    reordered_samples: int = 0
+    received: int = 0
+    """Distinct samples received (stored, or dropped as late or outlier) since the model
+    (re)started."""
+    k_lo: int = _EMPTY
+    k_hi: int = _EMPTY
+    """Lowest and highest sample index received since the model (re)started."""
+    missing_before: int = 0
+    """Samples missing in earlier model runs (before node restarts)."""
+
+    def receive(self, k: int) -> None:
+        """Count sample k as received (once per sample; duplicates are not passed)."""
+        self.received += 1
+        self.k_lo = k if self.k_lo == _EMPTY else min(self.k_lo, k)
+        self.k_hi = max(self.k_hi, k)
+
+    def missing_samples(self) -> int:
+        """Holes in the sample-index sequence received so far, all model runs."""
+        now = 0 if self.k_lo == _EMPTY else self.k_hi - self.k_lo + 1 - self.received
+        return self.missing_before + now
 
 
 @dataclass
@@ -252,6 +274,9 @@ class ResamplerStats:
     """Receive times beyond a horizon, by reason (:data:`HORIZON_REASONS`)."""
     grid_jump_points: int
     """Grid points skipped by grid jumps (never emitted)."""
+    nodes: dict[str, NodeTiming] = field(default_factory=dict)
+    """Per message: the node's fitted drift and grid phase, its late, missing and
+    reordered samples (their sums are ``late_frames`` and ``reordered_frames``)."""
 
 
 @dataclass(frozen=True)
@@ -396,10 +421,14 @@ class Resampler:
                    "clock" if node in self._required else "not_waited")
             st.late[why] += 1
             st.counters["late_frames"] += 1
+            node.late_samples += 1
+            if node.drop_k[slot] != k:
+                node.receive(k)
             node.drop_k[slot], node.drop_tag[slot] = k, _LATE_TAG
             return
         if seen and k < k_max:
             st.counters["reordered_frames"] += 1
+            node.reordered_samples += 1
         self._store(stream, node, k, frame, suspect, seen)
 
     def _is_late(self, node: NodeState, k: int) -> bool:
@@ -417,6 +446,8 @@ class Resampler:
         node.ring_v[slot] = stream.values(frame.values)
         node.ring_suspect[slot] = suspect
         node.k_stored = max(node.k_stored, k)
+        if node.drop_k[slot] != k:
+            node.receive(k)
         if not stream.lateral:
             return
         if not seen:
@@ -448,6 +479,8 @@ class Resampler:
                     and (not stream.lateral or (node.seen and not self._is_late(node, k))))
             if not fits:
                 st.counters["outlier_frames"] += 1
+                if node.drop_k[slot] != k:
+                    node.receive(k)
                 node.drop_k[slot], node.drop_tag[slot] = k, _OUTLIER_TAG
                 continue
             st.counters["retimed_frames"] += 1
@@ -485,6 +518,8 @@ class Resampler:
             close_run(c)
             node.ring_k[:] = [_EMPTY] * len(node.ring_k)
             node.k_stored = _EMPTY
+            node.missing_before = node.missing_samples()
+            node.received, node.k_lo, node.k_hi = 0, _EMPTY, _EMPTY
             st.counters["resyncs"] += 1
         for arrival, frame, suspect, _ in sorted(held, key=operator.itemgetter(0)):
             self._push(frame, suspect, arrival)
@@ -557,7 +592,18 @@ class Resampler:
             {m: n.clock.drift_ppm for m, n in st.nodes.items()}, dict(st.late),
             {m: dict(g) for m, g in st.gaps.items()}, c["clock_steps"], st.rx_offset_s,
             c["retimed_frames"], tuple(m for m, n in st.nodes.items() if n.excluded),
-            dict(st.horizon), c["grid_jump_points"])
+            dict(st.horizon), c["grid_jump_points"],
+            {m: self._timing(m, n) for m, n in st.nodes.items()})
+
+    def _timing(self, message: str, node: NodeState) -> NodeTiming:
+        """One node's fitted clock and sample counts (:class:`NodeTiming`)."""
+        c, fs = node.clock, self.config.fs_hz
+        phase_us = math.nan
+        if c.started:
+            t_s = c.time_s(c.k_max)
+            phase_us = (t_s * fs - math.floor(t_s * fs)) * 1e6 / fs
+        return NodeTiming(message, c.drift_ppm, phase_us, node.late_samples,
+                          node.missing_samples(), node.reordered_samples)
 
     # ------------------------------------------------------------------ grid
     def _release_ready(self) -> None:

@@ -8,6 +8,38 @@ from typing import Any
 
 
 @dataclass(frozen=True)
+class NodeTiming:
+    """The front end's view of one sensor node (one sending message): its fitted clock
+    and what became of its samples, so timing can be checked from outside
+    (``docs/resampler.md``, "Per-node timing").
+
+    ``drift_ppm``: the node's fitted sample period against nominal, ppm of the receive
+    clock (NaN until the envelope fit has two segments). ``grid_phase_us``: where the
+    node's sample instants sit between grid points: the time from the grid point at or
+    before the node's newest sample to that sample, on the fitted model, us, in
+    ``[0, 1e6 / fs_hz)`` (NaN before the node's first frame); it includes the bus's
+    minimum latency, common to all nodes, and moves by ``drift_ppm`` x 1e-6 of a node
+    period per sample. ``late_samples``: samples dropped because the grid had passed them
+    (all reasons). ``missing_samples``: holes in the node's sample-index sequence, samples
+    never received (lost on the bus, rejected by validation); a late sample is received,
+    not missing; counted from the node's first to its newest sample, per model run
+    (across node restarts). ``reordered_samples``: samples received after a newer sample
+    of the same node.
+    """
+
+    message: str
+    drift_ppm: float
+    grid_phase_us: float
+    late_samples: int
+    missing_samples: int
+    reordered_samples: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON types (non-finite floats stay; the writers map them to null)."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
 class FrontEndStats:
     """What the front end made of the traffic so far: for the replay report, the health
     frame and the console (``docs/resampler.md``, "Front-end statistics").
@@ -27,7 +59,9 @@ class FrontEndStats:
     frames are rejected, so they are excluded from the estimator); ``two_sender_events``:
     per message, times that flag was raised. ``horizon``: receive times beyond a horizon,
     by reason (:data:`gateway.frontend.resample.HORIZON_REASONS`); ``grid_jump_points``: grid
-    points skipped by grid jumps over empty time (never emitted).
+    points skipped by grid jumps over empty time (never emitted). ``nodes``: per sending
+    message, the node's fitted drift and grid phase and its late, missing and reordered
+    samples (:class:`NodeTiming`).
     """
 
     frames: int
@@ -48,6 +82,7 @@ class FrontEndStats:
     two_sender_events: dict[str, int]
     horizon: dict[str, int] = field(default_factory=dict)
     grid_jump_points: int = 0
+    nodes: dict[str, NodeTiming] = field(default_factory=dict)
 
     @property
     def late_total(self) -> int:

@@ -12,7 +12,9 @@ JSON layout::
 (:class:`gateway.frontend.stats.FrontEndStats` as a dict: ``late`` and ``gaps`` by reason,
 ``gating`` with the ``updated`` count, ``clock_steps``, ``rx_offset_s``, ``resyncs``,
 ``retimed_frames``, ``outlier_frames``, ``sample_idx_jumps``, ``two_senders``,
-``two_sender_events``).
+``two_sender_events``, and ``nodes``: per message the node's ``drift_ppm``,
+``grid_phase_us``, ``late_samples``, ``missing_samples`` and ``reordered_samples``,
+:class:`gateway.frontend.stats.NodeTiming`).
 """
 
 from __future__ import annotations

@@ -72,10 +72,12 @@ T = TypeVar("T")
 def front_end_view(fe: FrontEndStats | None) -> dict[str, Any]:
     """The ``status`` reply's ``front_end``: late frames and gap points by reason (gaps
     summed over the lateral messages), resyncs, clock steps, receive times beyond a
-    horizon by reason, and the messages with two senders now (plus raise counts)."""
+    horizon by reason, the messages with two senders now (plus raise counts), and each
+    node's timing (``nodes``: :meth:`gateway.frontend.stats.NodeTiming.as_dict` per
+    message)."""
     if fe is None:
         return {"late": {}, "gaps": {}, "resyncs": 0, "clock_steps": 0, "horizon": {},
-                "two_senders": [], "two_sender_events": 0}
+                "two_senders": [], "two_sender_events": 0, "nodes": {}}
     gaps: dict[str, int] = {}
     for by_reason in fe.gaps.values():
         for why, n in by_reason.items():
@@ -83,7 +85,8 @@ def front_end_view(fe: FrontEndStats | None) -> dict[str, Any]:
     return {"late": dict(fe.late), "gaps": gaps, "resyncs": fe.resyncs,
             "clock_steps": fe.clock_steps, "horizon": dict(fe.horizon),
             "two_senders": list(fe.two_senders),
-            "two_sender_events": sum(fe.two_sender_events.values())}
+            "two_sender_events": sum(fe.two_sender_events.values()),
+            "nodes": {m: t.as_dict() for m, t in fe.nodes.items()}}
 
 
 def state_dir_view(write_failures: int, set_aside: Sequence[str]) -> dict[str, Any]:
