@@ -186,12 +186,15 @@ def _samples(Y: np.ndarray) -> list[Sample]:
 
 
 def test_checkpoint_and_restore_are_bit_exact_in_fast_mode() -> None:
-    """Checkpoints in the exact warm-up and in the steady phase continue bit for bit."""
-    S = _samples(_outputs(2600, 3, seed=4))
+    """Checkpoints in the exact warm-up, in the steady phase and in the exact hand-over
+    of a sensor outage (sensor 1 missing for 0.1 s) continue bit for bit."""
+    Y = _outputs(2600, 3, seed=4)
+    Y[1600:1700, 1] = np.nan
+    S = _samples(Y)
     cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=64, sensors=3, seed=1, mode="fast",
                      fast_warmup_s=0.3)
     filt = RBPF(cfg)
-    for cut in (150, 1500):
+    for cut in (150, 1500, 1650):
         filt = RBPF(cfg)
         filt.run(S[:cut])
         twin = RBPF.restore(filt.checkpoint())

@@ -54,6 +54,7 @@ from gateway.estimator.steady import (
     kf_steady_block,
     kf_subset,
     steady_gains,
+    steady_posterior,
 )
 from gateway.model.coordinates import NZ, FilterCoords
 from gateway.model.vehicle import (
@@ -69,13 +70,17 @@ from gateway.records import Estimate, Sample
 __all__ = ["RBPF", "RBPFConfig", "AR_NAME", "PRIOR_SAMPLES"]
 
 log = logging.getLogger(__name__)
+SUBSET_STEADY_S = 0.02
+"""Fast mode: a run of samples with only some sensors this long (s) is updated from the
+steady P- of the full set; a longer outage hands over to the exact recursion."""
 MAX_WINDOW = 4096
 """Samples :meth:`RBPF.run` holds at once (outputs further apart are read in pieces)."""
 PRIOR_SAMPLES = 2**13
 """The state prior is the covariance this many samples after a start from rest."""
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
-            "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left")
+            "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
+            "_subset_run")
 
 
 class RBPF:
@@ -90,6 +95,7 @@ class RBPF:
         self._fast = config.mode == "fast"
         self._steady = False
         self._warm_left = 0
+        self._subset_run = 0
         m = config.n_particles
         self._nch = n_chunks(m)
         self._ll = np.zeros(self._nch * LANES)
@@ -167,7 +173,7 @@ class RBPF:
             self._P = self._own_prior()
             self._gains = SteadyGains.empty(self._nch, self.ny)
             self._steady = False
-            self._warm_left = int(round(cfg.fast_warmup_s * cfg.fs_hz)) if self._fast else 0
+            self._warm_left = self._warm_steps()
             self._p0_set = True
         self._recompute()
 
@@ -194,7 +200,22 @@ class RBPF:
     def _enter_steady(self) -> None:
         """Fast mode, after the exact warm-up: every filter takes its steady-state gains."""
         self._steady = True
+        self._subset_run = 0
         self._recompute_gains()
+
+    def _leave_steady(self) -> None:
+        """Fast mode, a sensor outage longer than ``SUBSET_STEADY_S``: the steady gains of
+        the full sensor set no longer fit (the exact P would widen), so the exact
+        recursion takes over from the steady covariance until ``fast_warmup_s`` of full
+        data has passed."""
+        v0 = self._null(self.theta)
+        P = steady_posterior(self._gains, v0, self._H, self._r, self.config.n_particles)
+        self._P = to_lanes(P.reshape(len(P), -1))
+        self._steady = False
+        self._warm_left = self._warm_steps()
+
+    def _warm_steps(self) -> int:
+        return int(round(self.config.fast_warmup_s * self.config.fs_hz)) if self._fast else 0
 
     def _recompute_gains(self) -> None:
         """Fast mode: every particle's steady-state filter at its theta and v_ref."""
@@ -244,15 +265,22 @@ class RBPF:
             kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
                     self._P0, self._ll, self._nis, self._dead)
             if self._fast:
-                self._warm_left -= 1
+                partial = bool(use.any()) and not bool(use.all())
+                self._warm_left = self._warm_steps() if partial else self._warm_left - 1
                 if self._warm_left <= 0:
                     self._enter_steady()
         elif use.all() or not use.any():
+            self._subset_run = 0
             kf_steady(self._X, self._phi, self._H, y, use, self._gains, self._ll, self._nis,
                       self._dead)
-        else:
+        elif self._subset_run < SUBSET_STEADY_S * self.config.fs_hz:
+            self._subset_run += 1
             kf_subset(self._X, self._phi, self._H, self._r, y, use, self._gains,
                       self.config.n_particles, self._ll, self._nis, self._dead)
+        else:
+            self._leave_steady()
+            kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
+                    self._P0, self._ll, self._nis, self._dead)
         m = self.config.n_particles
         self.logw, w, total, ess, nis = pt.absorb(self.logw, self._ll, self._nis,
                                                    self._weights())
@@ -427,7 +455,7 @@ class RBPF:
             self._X = np.zeros_like(self._X)
             self._P = self._own_prior()
             self._steady = False
-            self._warm_left = int(round(cfg.fast_warmup_s * cfg.fs_hz)) if self._fast else 0
+            self._warm_left = self._warm_steps()
         elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
         self._recompute()

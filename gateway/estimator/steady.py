@@ -520,6 +520,31 @@ def kf_steady_block(x: np.ndarray, phi: np.ndarray, H: np.ndarray, Y: np.ndarray
     _block_kernel(x, phi, H, Y, full, gains.g, gains.s, gains.c0, LL, NIS)
 
 
+def steady_posterior(gains: SteadyGains, v0: np.ndarray, H: np.ndarray, r: np.ndarray,
+                     n_particles: int) -> np.ndarray:
+    """The steady updated covariance P+ (N, 16, 16), positive semi-definite: where the
+    exact recursion takes over from the steady gains (a long sensor outage).
+
+    The doubling keeps no variance along the unobservable v0 (``v0`` (N, 16) unit), so
+    P- is indefinite there; the smallest variance along v0 that makes P+ positive
+    semi-definite (the Schur complement of the rest), times 1.01, is put back. No gain
+    or likelihood depends on it (H v0 = 0).
+    """
+    P = from_lanes(gains.p_pred, n_particles, (NZ, NZ))
+    for s in range(H.shape[0]):
+        ph = P @ H[s]
+        S = ph @ H[s] + r[s]
+        P = P - np.einsum("mi,mj->mij", ph, ph) / S[:, None, None]
+    P = 0.5 * (P + P.transpose(0, 2, 1))
+    proj = np.eye(NZ)[None] - np.einsum("mi,mj->mij", v0, v0)
+    rest = proj @ P @ proj
+    c = np.einsum("mij,mjk,mk->mi", proj, P, v0)
+    a = np.einsum("mi,mij,mj->m", v0, P, v0)
+    need = np.einsum("mi,mij,mj->m", c, np.linalg.pinv(rest, rcond=1e-12, hermitian=True), c)
+    add = np.maximum(1.01 * need + 1e-300 - a, 0.0)
+    return P + add[:, None, None] * np.einsum("mi,mj->mij", v0, v0)
+
+
 def kf_subset(x: np.ndarray, phi: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray,
               use: np.ndarray, gains: SteadyGains, n_particles: int, ll: np.ndarray,
               nis: np.ndarray, dead: np.ndarray) -> None:
