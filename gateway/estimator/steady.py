@@ -1,6 +1,6 @@
 """Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
 
-Over 400 lines (550): the generators of three lane kernels (the doubling with its Newton
+Over 400 lines (575): the generators of three lane kernels (the doubling with its Newton
 step, the single step, the block of steps) and their typed wrappers, one concern.
 
 A particle's covariance and gains depend only on its theta and the speed, never on the
