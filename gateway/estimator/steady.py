@@ -1,7 +1,7 @@
 """Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
 
-Over 400 lines (575): the generators of three lane kernels (the doubling with its Newton
-step, the single step, the block of steps) and their typed wrappers, one concern.
+Over 400 lines (530): the generators of two lane kernels (the doubling with its Newton
+step, the block of steady steps) and their typed wrappers, one concern.
 
 A particle's covariance and gains depend only on its theta and the speed, never on the
 data, and theta is fixed between resample-moves. Fast mode therefore gives each particle
@@ -335,48 +335,9 @@ def _sda_source(n: int) -> list[str]:
     return L
 
 
-def _step_source(n: int) -> list[str]:
-    C = LANES
-    L = ["def kf_steady(X, F, H, y, use, Gs, Ss, c0, ll, nis, dead):",
-         "    nch = X.shape[0]",
-         "    ny = H.shape[0]",
-         "    for ch in prange(nch):",
-         f"        xn = np.empty({n * C})",
-         "        Fc = F[ch]",
-         "        Xc = X[ch]",
-         f"        for i in range({n}):"]
-    L += stmt(3, "xs_{l} = 0.0")
-    L += [f"            for k in range({n}):"]
-    L += stmt(4, f"xs_{{l}} += Fc[(i * {n} + k) * {C} + {{l}}] * Xc[k * {C} + {{l}}]")
-    L += stmt(3, f"xn[i * {C} + {{l}}] = xs_{{l}}")
-    L += stmt(2, "q_{l} = 0.0")
-    L += ["        nused = 0", "        for s in range(ny):", "            if not use[s]:",
-          "                continue", "            nused += 1"]
-    L += stmt(3, "e_{l} = y[s]")
-    L += [f"            for k in range({n}):", "                hk = H[s, k]"]
-    L += stmt(4, f"e_{{l}} -= hk * xn[k * {C} + {{l}}]")
-    L += stmt(3, f"g_{{l}} = 1.0 / Ss[ch, s * {C} + {{l}}]")
-    L += stmt(3, "q_{l} += e_{l} * e_{l} * g_{l}")
-    L += stmt(3, "e_{l} = e_{l} * g_{l}")
-    L += [f"            for i in range({n}):"]
-    L += stmt(4, f"xn[i * {C} + {{l}}] += Gs[ch, (s * {n} + i) * {C} + {{l}}] * e_{{l}}")
-    for lane in range(C):
-        p = f"ch * {C} + {lane}"
-        L += ["        if nused > 0:",
-              f"            ll[{p}] -= 0.5 * (c0[{p}] + q_{lane})",
-              f"            nis[{p}] += q_{lane}",
-              f"        if c0[{p}] == np.inf:",
-              f"            dead[{p}] = True",
-              f"            ll[{p}] = -np.inf",
-              f"            for i in range({n}):",
-              f"                xn[i * {C} + {lane}] = 0.0"]
-    L += [f"        for i in range({n * C}):", "            Xc[i] = xn[i]"]
-    return L
-
-
 def _block_source(n: int) -> list[str]:
-    """:func:`_step_source` for K samples at once: each chunk runs all of them in turn
-    (its state stays in cache), writing each sample's log-likelihood and NIS."""
+    """The steady step for K samples at once: each chunk runs all of them in turn (its
+    state stays in cache), writing each sample's log-likelihood and NIS."""
     C = LANES
     L = ["def kf_steady_block(X, F, H, Y, full, Gs, Ss, c0, LL, NIS):",
          "    nch = X.shape[0]",
@@ -420,16 +381,12 @@ def _block_source(n: int) -> list[str]:
 
 _SDA_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8, "
             "i8, f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], i8[::1])")
-_STEP_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], b1[::1], f8[:, ::1], "
-             "f8[:, ::1], f8[::1], f8[::1], f8[::1], b1[::1])")
-_sda_kernel = compile_kernel("sda", _sda_source(NZ), _SDA_SIG, module=__name__,
-                             source_file=__file__, parallel=True)
 _BLOCK_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], b1[::1], f8[:, ::1], "
               "f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1])")
+_sda_kernel = compile_kernel("sda", _sda_source(NZ), _SDA_SIG, module=__name__,
+                             source_file=__file__, parallel=True)
 _block_kernel = compile_kernel("kf_steady_block", _block_source(NZ), _BLOCK_SIG,
                                module=__name__, source_file=__file__, parallel=True)
-_step_kernel = compile_kernel("kf_steady", _step_source(NZ), _STEP_SIG, module=__name__,
-                              source_file=__file__, parallel=True)
 
 
 @dataclass
@@ -502,12 +459,20 @@ def steady_gains(phi: np.ndarray, qd: np.ndarray, v0: np.ndarray, H: np.ndarray,
 def kf_steady(x: np.ndarray, phi: np.ndarray, H: np.ndarray, y: np.ndarray,
               use: np.ndarray, gains: SteadyGains, ll: np.ndarray, nis: np.ndarray,
               dead: np.ndarray) -> None:
-    """One steady-gain step for all particles, in place (module docstring).
+    """One steady-gain step for all particles, in place (module docstring): the block
+    kernel with one sample.
 
     ``use`` must select every sensor or none (predict only); a subset needs gains of
-    its own (:func:`kf_subset`). ``ll``, ``nis`` are added to, as in the exact kernel.
+    its own (:func:`kf_subset`). ``ll``, ``nis`` are added to and ``dead`` is set, as in
+    the exact kernel.
     """
-    _step_kernel(x, phi, H, y, use, gains.g, gains.s, gains.c0, ll, nis, dead)
+    LL = np.empty((1, ll.shape[0]))
+    NIS = np.empty_like(LL)
+    _block_kernel(x, phi, H, np.ascontiguousarray(y, dtype=float)[None, :],
+                  np.array([bool(use.all())]), gains.g, gains.s, gains.c0, LL, NIS)
+    ll += LL[0]
+    nis += NIS[0]
+    dead |= gains.c0 == np.inf
 
 
 def kf_steady_block(x: np.ndarray, phi: np.ndarray, H: np.ndarray, Y: np.ndarray,
@@ -516,7 +481,7 @@ def kf_steady_block(x: np.ndarray, phi: np.ndarray, H: np.ndarray, Y: np.ndarray
     """:func:`kf_steady` for K samples in one call, in place: ``Y`` (K, ny) with ``full``
     (K,) True where every sensor is used, False for predict-only samples; ``LL``, ``NIS``
     (K, n_chunks * LANES) receive each sample's log-likelihood and NIS (set, not added).
-    Bit-identical to K calls of :func:`kf_steady` (same arithmetic, same order)."""
+    Bit-identical to K calls of :func:`kf_steady`."""
     _block_kernel(x, phi, H, Y, full, gains.g, gains.s, gains.c0, LL, NIS)
 
 
