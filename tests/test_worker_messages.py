@@ -19,6 +19,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from fakes.stepping import SteppedRuns
 
 from gateway.can.codec import default_codec
 from gateway.config import Config, with_overrides
@@ -31,7 +32,7 @@ from gateway.service.daemon import Service
 from gateway.sinks.outputs import CanSink, LogSink
 
 
-class RecordingEstimator:
+class RecordingEstimator(SteppedRuns):
     """Implements :class:`Estimator`; its checkpoint is the log of what it was asked."""
 
     def __init__(self, state: dict[str, list[object]] | None = None) -> None:
@@ -45,14 +46,6 @@ class RecordingEstimator:
         self.state["t_s"].append(sample.t_s)
         n = float(len(self.state["t_s"]))
         return Estimate(sample.t_s, (n,) * 3, (1.0,) * 3, 1.0, updated=sample.update)
-
-    def advance(self, sample: Sample) -> None:
-        self.step(sample)
-
-    def run(self, samples: list[Sample], output_every: int | None = None) -> list[Estimate]:
-        out = [self.step(s) for s in samples]
-        every = output_every or 1
-        return [e for k, e in enumerate(out) if (k + 1) % every == 0 or k == len(out) - 1]
 
     def checkpoint(self) -> bytes:
         return json.dumps(self.state).encode()

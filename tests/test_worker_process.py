@@ -14,12 +14,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from fakes.stepping import SteppedRuns
 
 from gateway.records import Estimate, Sample
 from gateway.runtime.worker import WORKER_NICE, WorkerLink, WorkerSettings
 
 
-class CountingEstimator:
+class CountingEstimator(SteppedRuns):
     """Counts the samples it stepped; the checkpoint is that count."""
 
     def __init__(self, n: int = 0) -> None:
@@ -28,14 +29,6 @@ class CountingEstimator:
     def step(self, sample: Sample) -> Estimate:
         self.n += 1
         return Estimate(sample.t_s, (float(self.n),) * 3, (1.0,) * 3, 1.0)
-
-    def advance(self, sample: Sample) -> None:
-        self.step(sample)
-
-    def run(self, samples: list[Sample], output_every: int | None = None) -> list[Estimate]:
-        out = [self.step(s) for s in samples]
-        every = output_every or 1
-        return [e for k, e in enumerate(out) if (k + 1) % every == 0 or k == len(out) - 1]
 
     def checkpoint(self) -> bytes:
         return str(self.n).encode()
