@@ -38,8 +38,8 @@ def test_ingest_of_a_missing_path_is_one_line(tmp_path: Path) -> None:
                          capture_output=True, text=True, timeout=120)
     assert out.returncode != 0
     assert out.stderr.strip().splitlines() == [
-        f"error: expected a CAN log or a directory, got {str(tmp_path / 'nope')!r} "
-        f"(not found)"]
+        f"error: expected a CAN log, a directory of logs or a gateway state directory, got "
+        f"{str(tmp_path / 'nope')!r} (not found)"]
 
 
 def test_ingest_needs_vehicle_and_bogie_for_a_loose_log(tmp_path: Path) -> None:

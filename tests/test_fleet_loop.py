@@ -14,7 +14,7 @@ from firmware_sim.fleet import FleetSpec, simulate_fleet  # noqa: E402
 from gateway.config import Config, with_overrides  # noqa: E402
 from gateway.fleet.replay import dask_client, replay_store, result_path  # noqa: E402
 from gateway.fleet.report import build_report  # noqa: E402
-from gateway.fleet.runs import estimator_version  # noqa: E402
+from gateway.fleet.runs import PARAMS, estimator_version  # noqa: E402
 from gateway.fleet.store import Store  # noqa: E402
 
 pytestmark = pytest.mark.slow   # the everyday tier is -m "not slow"; CI runs all
@@ -119,3 +119,68 @@ def test_sql_over_the_store(fleet: dict[str, Path]) -> None:
     for r in store.runs():
         want[r.vehicle] = want.get(r.vehicle, 0) + r.grid_points
     assert got == want
+
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    import csv
+
+    with open(path, encoding="utf-8", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_alert_history_runs_on_across_runs(fleet: dict[str, Path]) -> None:
+    # one policy per unit over all its runs, as on the vehicle: a damper that has failed
+    # is raised once, not again at the start of every later run
+    truth = json.loads((fleet["root"] / "sim" / "truth.json").read_text())
+    alerts = [a for a in _csv(fleet["report"] / "alerts.csv") if a["source"] == "replay"]
+    states: dict[tuple[str, ...], str] = {}
+    for a in alerts:
+        key = (a["vehicle"], a["bogie"], a["parameter"], a["severity"])
+        assert states.get(key, "cleared") != a["state"] or a["state"] == "acknowledged", a
+        states[key] = a["state"]
+    failing = next(u for u, v in truth["units"].items() if v["role"] == "csy-failing")
+    veh, bog = failing.split("/")
+    t_fail = truth["units"][failing]["crossings"]["csy_ns_per_m"]["advisory"]
+    raised = [a for a in alerts if (a["vehicle"], a["bogie"], a["parameter"], a["state"])
+              == (veh, bog, "csy_ns_per_m", "raised")]
+    assert raised and all(a["time"] >= _iso(t_fail) for a in raised), raised
+
+
+def _iso(t_s: float) -> str:
+    import datetime as dt
+
+    return dt.datetime.fromtimestamp(t_s, dt.UTC).strftime("%Y-%m-%d %H:%M")
+
+
+def test_report_shows_an_ingested_state_directory(fleet: dict[str, Path],
+                                                  tmp_path: Path) -> None:
+    # the vehicle's own history, written by the service's StateStore from V01's replayed
+    # estimates, lands beside the replay in the same report
+    import pyarrow.parquet as pq
+
+    from gateway.records import Alert, AlertState, Estimate, Severity
+    from gateway.sinks.store import StateStore
+
+    store = Store(fleet["store"])
+    runs = [r for r in store.runs() if r.vehicle == "V01"]
+    now = [0.0]
+    state = tmp_path / "copy" / "V01" / "B1" / "state"
+    with StateStore(state, clock=lambda: now[0]) as st:
+        for r in runs:
+            t = pq.read_table(result_path(fleet["store"].resolve(), estimator_version(CFG), r))
+            for row in t.to_pylist():
+                now[0] = row["t_s"]
+                st.record_estimate(Estimate(row["t_s"], tuple(row[f"{p}_mean"] for p in PARAMS),
+                                            tuple(row[f"{p}_std"] for p in PARAMS), row["ess"]))
+        st.append_alert(Alert(7, now[0], PARAMS[1], Severity.WARNING, AlertState.RAISED,
+                              0x202, 0.6, "Csay low"))
+    rep = store.ingest([tmp_path / "copy"], CFG)
+    assert [(s.vehicle, s.alerts) for s in rep.states] == [("V01", 1)]
+    assert rep.states[0].estimates >= len(runs)
+    build_report(store, estimator_version(CFG), tmp_path / "report")
+    onboard = [a for a in _csv(tmp_path / "report" / "alerts.csv") if a["source"] == "onboard"]
+    assert [(a["vehicle"], a["seq"], a["parameter"], a["severity"], a["state"])
+            for a in onboard] == [("V01", "7", PARAMS[1], "warning", "raised")]
+    replay = [a for a in _csv(tmp_path / "report" / "alerts.csv") if a["source"] == "replay"]
+    assert replay == [a for a in _csv(fleet["report"] / "alerts.csv")
+                      if a["source"] == "replay"]

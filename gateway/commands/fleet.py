@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     fsub = fleet.add_subparsers(dest="fleet_command", metavar="STEP", required=True)
     p = fsub.add_parser("ingest", help="CAN logs (.log/.asc/.blf) into the Parquet store")
     p.add_argument("store", type=output_dir, help="store directory (created if missing)")
-    p.add_argument("paths", nargs="+", help="logs, or directories of VEHICLE/BOGIE/*.log")
+    p.add_argument("paths", nargs="+", help="logs, gateway state directories, or directories of "
+                   "VEHICLE/BOGIE/ folders holding either")
     p.add_argument("--vehicle", help="vehicle name for every log given (default: its folder)")
     p.add_argument("--bogie", help="bogie name for every log given (default: its folder)")
     _common(p)
@@ -77,10 +78,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_demo, particles=None)
 
 
-def _config(args: argparse.Namespace, particles: int | None = None) -> Config:
+def _config(args: argparse.Namespace) -> Config:
     cfg = load_config(args.config)
     over: dict[str, Any] = {}
-    for key, value in (("particles", args.particles or particles), ("sensors", args.sensors),
+    for key, value in (("particles", args.particles), ("sensors", args.sensors),
                        ("seed", args.seed)):
         if value is not None:
             over[f"estimator.{key}"] = value
@@ -106,8 +107,10 @@ def run_ingest(args: argparse.Namespace) -> int:
     rep = store.ingest(args.paths, _config(args), vehicle=args.vehicle, bogie=args.bogie,
                        progress=progress)
     points = sum(r.grid_points for r in rep.added)
-    print(f"ingested {len(rep.added)} runs ({points} grid points), skipped {len(rep.skipped)} "
-          f"already in the store -> {args.store}")
+    print(f"ingested {len(rep.added)} runs ({points} grid points) and {len(rep.states)} state "
+          f"directories ({sum(s.estimates for s in rep.states)} estimates, "
+          f"{sum(s.alerts for s in rep.states)} alert events new), skipped "
+          f"{len(rep.skipped)} already in the store -> {args.store}")
     return 0
 
 
@@ -183,7 +186,7 @@ def run_demo(args: argparse.Namespace) -> int:
         if subprocess.run(cmd, check=False).returncode != 0:
             raise InputError(f"expected the fleet simulator to succeed, got a failure of "
                              f"{' '.join(cmd[1:])}")
-    cfg = _config(args, particles=100)
+    cfg = _config(args)
     store = _store(str(out / "store"), must_exist=False)
     print("== ingest", flush=True)
     rep = store.ingest([sim / "logs"], cfg)

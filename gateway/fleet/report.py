@@ -1,11 +1,14 @@
 """The fleet report: per-unit trends, crossing predictions, a ranking; CSV, PNG and one HTML page.
 
-Reads the replay results of one estimator version from the store. A unit is a
-(vehicle, bogie). Per run the summary is the run's last estimate (the posterior after
-all its data). Outputs in ``out_dir``: ``runs.csv``, ``alerts.csv``, ``trends.csv``,
+Reads the replay results of one estimator version from the store, and the on-board
+histories of any state directories ingested. A unit is a (vehicle, bogie). Per run the
+summary is the run's last estimate (the posterior after all its data); the alert history
+is the gateway's policy over all the unit's runs in order, beside the vehicle's own
+alerts. Outputs in ``out_dir``: ``runs.csv``, ``alerts.csv``, ``trends.csv``,
 ``ranking.csv`` (worst first), ``unit-<vehicle>-<bogie>.png`` (Csy, Csay and lambda
 relative to nominal against calendar time, +-2 sigma bars, the fitted trend and its band,
-the threshold, the predicted crossing with its interval, alert events), ``fleet.png``
+the threshold, the predicted crossing with its interval, alert events, the on-board
+estimate history), ``fleet.png``
 and ``report.html`` (figures embedded as base64: one self-contained file).
 """
 
@@ -15,7 +18,6 @@ import base64
 import csv
 import datetime as dt
 import html
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +26,9 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from gateway.errors import InputError
+from gateway.fleet.onboard import OnboardHistory, read_onboard
 from gateway.fleet.replay import result_path
-from gateway.fleet.runs import NOMINAL, PARAMS, thresholds
+from gateway.fleet.runs import NOMINAL, PARAMS, RunEstimates, thresholds, unit_alerts
 from gateway.fleet.store import Store
 from gateway.fleet.trend import DAY_S, Trend, fit_trend
 
@@ -76,24 +79,39 @@ def level_thresholds(level: str) -> dict[str, tuple[float, str]]:
 
 
 def load_runs(store: Store, version: str) -> list[RunRow]:
-    rows = []
+    """Each replayed run's final estimate, with the alert events raised during the run by
+    the gateway's policy run over the unit's runs in calendar order
+    (:func:`gateway.fleet.runs.unit_alerts`)."""
+    finals = []
+    series: dict[tuple[str, str], list[RunEstimates]] = {}
     root = store.root.resolve()
-    for info in store.runs():
+    for info in sorted(store.runs(), key=lambda i: i.t0_s):
         path = result_path(root, version, info)
         if info.grid_points == 0 or not path.is_file():
             continue
         table = pq.read_table(path)
         if table.num_rows == 0:
             continue
-        meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()}
-        last = {c: table.column(c)[-1].as_py() for c in table.column_names}
-        rows.append(RunRow(info.vehicle, info.bogie, info.run_id, float(last["t_s"]),
-                           tuple(last[f"{p}_mean"] / NOMINAL[p] for p in PARAMS),
-                           tuple(last[f"{p}_std"] / NOMINAL[p] for p in PARAMS),
-                           tuple(json.loads(meta.get("railgw.alerts", "[]")))))
-    if not rows:
+        t = table.column("t_s").to_numpy()
+        mean = np.column_stack([table.column(f"{p}_mean").to_numpy() for p in PARAMS])
+        std = np.column_stack([table.column(f"{p}_std").to_numpy() for p in PARAMS])
+        ess = table.column("ess").to_numpy()
+        series.setdefault((info.vehicle, info.bogie), []).append(
+            RunEstimates(t, mean, std, ess, ()))
+        finals.append((info, float(t[-1]), mean[-1], std[-1]))
+    if not finals:
         raise InputError(f"expected replay results for estimator {version} in {store.root}, "
                          f"got none (run 'railgw fleet replay' first)")
+    alerts = {unit: unit_alerts(runs) for unit, runs in series.items()}
+    rows = []
+    for info, t_end, m, sd in finals:
+        unit = (info.vehicle, info.bogie)
+        t_start = info.t0_s
+        rows.append(RunRow(info.vehicle, info.bogie, info.run_id, t_end,
+                           tuple(m[j] / NOMINAL[p] for j, p in enumerate(PARAMS)),
+                           tuple(sd[j] / NOMINAL[p] for j, p in enumerate(PARAMS)),
+                           tuple(a for a in alerts[unit]
+                                 if t_start <= float(a["t_s"]) <= t_end)))  # type: ignore[arg-type]
     return sorted(rows, key=lambda r: (r.vehicle, r.bogie, r.t_s))
 
 
@@ -144,7 +162,7 @@ def _write_csv(path: Path, rows: list[dict[str, object]]) -> None:
         w.writerows(rows)
 
 
-def _plot_unit(path: Path, u: UnitTrends, rs: list[RunRow]) -> None:
+def _plot_unit(path: Path, u: UnitTrends, rs: list[RunRow], board: OnboardHistory) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -158,6 +176,10 @@ def _plot_unit(path: Path, u: UnitTrends, rs: list[RunRow]) -> None:
         tr = u.trends[p]
         y = np.array([r.rel[j] for r in rs])
         s = np.array([r.std_rel[j] for r in rs])
+        if len(board.wall_s):
+            ax.plot([dt.datetime.fromtimestamp(x, dt.UTC) for x in board.wall_s],
+                    board.mean[:, j] / NOMINAL[p], ".", color="0.6", ms=2,
+                    label="on board (state directory)")
         ax.errorbar(when, y, yerr=2 * s, fmt="o", ms=3, lw=0.8, label="run estimate ±2σ")
         t_end = max(t[-1], tr.crossing_hi_s if math.isfinite(tr.crossing_hi_s) else t[-1],
                     tr.crossing_s if math.isfinite(tr.crossing_s) else t[-1])
@@ -178,9 +200,14 @@ def _plot_unit(path: Path, u: UnitTrends, rs: list[RunRow]) -> None:
                 if a_.get("parameter") == p and a_.get("state") == "raised":
                     ax.plot(dt.datetime.fromtimestamp(float(a_["t_s"]), dt.UTC),  # type: ignore[arg-type]
                             float(a_["value_rel"]), "rv", ms=6)  # type: ignore[arg-type]
+        for a_ in board.alerts:
+            if a_.get("parameter") == p and a_.get("state") == "RAISED":
+                ax.plot(dt.datetime.fromtimestamp(float(a_["wall_time_s"]), dt.UTC),  # type: ignore[arg-type]
+                        float(a_["value_rel"]), "v", color="C4", ms=6)  # type: ignore[arg-type]
         ax.set_ylabel(f"{LABELS[p]} / nominal")
         ax.grid(alpha=0.3)
-    axes[0].set_title(f"{u.vehicle} {u.bogie}: estimates per run (red ▽ = alert raised)")
+    axes[0].set_title(f"{u.vehicle} {u.bogie}: estimates per run "
+                      "(▽ alert raised: red replay, purple on board)")
     axes[0].legend(fontsize=7, loc="best")
     loc = mdates.AutoDateLocator()
     axes[-1].xaxis.set_major_locator(loc)
@@ -232,9 +259,8 @@ def build_report(store: Store, version: str, out_dir: str | Path, *,
          "t_s": r.t_s, **{f"{LABELS[p]}_rel": round(r.rel[j], 5) for j, p in enumerate(PARAMS)},
          **{f"{LABELS[p]}_std_rel": round(r.std_rel[j], 5) for j, p in enumerate(PARAMS)},
          "alerts": len(r.alerts)} for r in rows])
-    _write_csv(out / "alerts.csv", [
-        {"vehicle": r.vehicle, "bogie": r.bogie, "run_id": r.run_id, "time": iso(
-            float(a["t_s"])), **a} for r in rows for a in r.alerts])  # type: ignore[arg-type]
+    boards = {(u.vehicle, u.bogie): read_onboard(store.root, u.vehicle, u.bogie) for u in units}
+    _write_csv(out / "alerts.csv", alert_rows(rows, boards))
     _write_csv(out / "trends.csv", [
         {"vehicle": u.vehicle, "bogie": u.bogie, "parameter": LABELS[p], "level": level,
          "threshold_rel": tr.threshold_rel, "status": tr.status, "model": tr.model,
@@ -249,9 +275,11 @@ def build_report(store: Store, version: str, out_dir: str | Path, *,
     for u in units:
         name = f"unit-{u.vehicle}-{u.bogie}.png"
         _plot_unit(out / name, u, [r for r in rows if (r.vehicle, r.bogie) == (u.vehicle,
-                                                                                 u.bogie)])
+                                                                                 u.bogie)],
+                   boards[(u.vehicle, u.bogie)])
         figures.append((name, f"{u.vehicle} {u.bogie}"))
-    _write_html(out / "report.html", version, level, rank, rows, figures, out)
+    _write_html(out / "report.html", version, level, rank, rows, alert_rows(rows, boards),
+                figures, out)
     return rank
 
 
@@ -264,12 +292,31 @@ def _table(rows: list[dict[str, object]]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def alert_rows(rows: list[RunRow], boards: dict[tuple[str, str], OnboardHistory]
+               ) -> list[dict[str, object]]:
+    """The alert history, per unit in time order: ``replay`` events (the policy over the
+    replayed runs) and ``onboard`` events (what the vehicle raised, from state directories;
+    time is when the vehicle wrote them)."""
+    out: list[dict[str, object]] = []
+    for r in rows:
+        out += [{"source": "replay", "vehicle": r.vehicle, "bogie": r.bogie,
+                 "time": iso(float(a["t_s"])), "seq": a.get("seq"),  # type: ignore[arg-type]
+                 "parameter": a.get("parameter"), "severity": a.get("severity"),
+                 "state": a.get("state"), "value_rel": a.get("value_rel"),
+                 "run_id": r.run_id} for a in r.alerts]
+    for (veh, bog), b in boards.items():
+        out += [{"source": "onboard", "vehicle": veh, "bogie": bog,
+                 "time": iso(float(a["wall_time_s"])), "seq": a.get("seq"),  # type: ignore[arg-type]
+                 "parameter": a.get("parameter"),
+                 "severity": str(a.get("severity", "")).lower(),
+                 "state": str(a.get("state", "")).lower(), "value_rel": a.get("value_rel"),
+                 "run_id": ""} for a in b.alerts]
+    return sorted(out, key=lambda a: (str(a["vehicle"]), str(a["bogie"]), str(a["time"])))
+
+
 def _write_html(path: Path, version: str, level: str, rank: list[dict[str, object]],
-                rows: list[RunRow], figures: list[tuple[str, str]], out: Path) -> None:
-    alerts = [{"vehicle": r.vehicle, "bogie": r.bogie, "time": iso(float(a["t_s"])),  # type: ignore[arg-type]
-               "parameter": a.get("parameter"), "severity": a.get("severity"),
-               "state": a.get("state"), "value_rel": a.get("value_rel")}
-              for r in rows for a in r.alerts]
+                rows: list[RunRow], alerts: list[dict[str, object]],
+                figures: list[tuple[str, str]], out: Path) -> None:
     imgs = "".join(
         f"<figure><img alt='{html.escape(name)}' src='data:image/png;base64,"
         f"{base64.b64encode((out / name).read_bytes()).decode()}'>"

@@ -36,7 +36,7 @@ ON_TIME_FRAMES = 1000
 """Frames between ``on_time`` calls, as ``gateway.offline.replay.replay``."""
 
 __all__ = ["NOMINAL", "PARAMS", "RunEstimates", "RunSamples", "Theta", "estimate_run",
-           "estimator_version", "log_samples", "thresholds"]
+           "estimator_version", "log_samples", "thresholds", "unit_alerts"]
 
 
 @dataclass(frozen=True)
@@ -135,3 +135,18 @@ def estimate_run(samples: RunSamples, cfg: Config) -> RunEstimates:
         std=np.array([e.std[:3] for e in estimates], dtype=np.float64).reshape(n, 3),
         ess=np.array([e.ess for e in estimates], dtype=np.float64),
         alerts=tuple(alert_json(a) for a in alerts))
+
+
+def unit_alerts(runs: list[RunEstimates]) -> list[dict[str, object]]:
+    """The gateway's alert policy (default thresholds and hold times) over one unit's runs
+    in calendar order, one policy for all of them, as on a vehicle whose policy state
+    survives between runs: an alarm raised in one run stays raised in the next until an
+    estimate clears it. Events as ``gateway replay`` reports them."""
+    policy = AlertPolicy()
+    out: list[dict[str, object]] = []
+    for r in runs:
+        for k in range(len(r.t_s)):
+            est = Estimate(float(r.t_s[k]), tuple(map(float, r.mean[k])),
+                           tuple(map(float, r.std[k])), float(r.ess[k]))
+            out.extend(alert_json(a) for a in policy.step(est))
+    return out

@@ -6,6 +6,7 @@ dataset)::
     manifest.jsonl                                   one line per ingested file
     samples/vehicle=V/bogie=B/day=YYYY-MM-DD/run-<id>.parquet     front-end output
     results/estimator=<ver>/vehicle=V/bogie=B/day=D/run-<id>.parquet   replay output
+    state-manifest.jsonl, onboard/...     copied state directories (gateway.fleet.onboard)
 
 A run's id is the first 16 hex digits of the SHA-256 of the log's bytes: a file seen
 before (under any name) is skipped, so re-ingesting counts nothing twice. Every file
@@ -35,7 +36,9 @@ import pyarrow.parquet as pq
 
 from gateway.config import Config
 from gateway.errors import InputError
+from gateway.fleet.onboard import STATE_MANIFEST, StateInfo, new_parts, state_infos
 from gateway.fleet.runs import RunSamples, log_samples
+from gateway.sinks.store.snapshot import is_state_dir, read_snapshot
 
 log = logging.getLogger(__name__)
 
@@ -72,10 +75,12 @@ class RunInfo:
 
 @dataclass(frozen=True)
 class IngestReport:
-    """What one ingest did: runs added, files skipped as already stored (by hash)."""
+    """What one ingest did: runs added, state-directory copies added, files and copies
+    skipped as already stored (by hash)."""
 
     added: tuple[RunInfo, ...]
     skipped: tuple[str, ...]
+    states: tuple[StateInfo, ...] = ()
 
 
 def check_name(kind: str, text: str) -> str:
@@ -132,8 +137,9 @@ class Store:
                 log.warning("%s:%d: unreadable manifest line skipped (%s)", path, n, err)
         return out
 
-    def _append(self, info: RunInfo) -> None:
-        with open(self.root / MANIFEST, "a", encoding="utf-8") as f:
+    def _append(self, info: RunInfo | StateInfo) -> None:
+        name = MANIFEST if isinstance(info, RunInfo) else STATE_MANIFEST
+        with open(self.root / name, "a", encoding="utf-8") as f:
             f.write(json.dumps(asdict(info), sort_keys=True) + "\n")
             f.flush()
             os.fsync(f.fileno())
@@ -154,11 +160,26 @@ class Store:
     def ingest(self, paths: Sequence[str | Path], cfg: Config, *, vehicle: str | None = None,
                bogie: str | None = None,
                progress: Callable[[int, int], None] | None = None) -> IngestReport:
-        """Ingest CAN logs (files, or directories searched for .log/.asc/.blf)."""
+        """Ingest CAN logs (files, or directories searched for .log/.asc/.blf) and gateway
+        state directories (given, or found in those directories)."""
         files = discover(paths, vehicle, bogie)
+        states = discover_states(paths, vehicle, bogie)
         added: list[RunInfo] = []
         skipped: list[str] = []
+        new_states: list[StateInfo] = []
         with self.locked():
+            known_states = {s.sha256 for s in state_infos(self.root)}
+            for path, veh, bog in states:
+                snap = read_snapshot(path)
+                if snap.sha256 in known_states:
+                    skipped.append(str(path))
+                    continue
+                parts, sinfo = new_parts(self.root, snap, veh, bog)
+                for rel, table in parts:
+                    write_atomic_table(table, self.root / rel)
+                self._append(sinfo)
+                known_states.add(snap.sha256)
+                new_states.append(sinfo)
             known = {r.sha256 for r in self.runs()}
             for k, (path, veh, bog) in enumerate(files):
                 sha = file_sha256(path)
@@ -170,7 +191,7 @@ class Store:
                     added.append(info)
                 if progress is not None:
                     progress(k + 1, len(files))
-        return IngestReport(tuple(added), tuple(skipped))
+        return IngestReport(tuple(added), tuple(skipped), tuple(new_states))
 
     def _ingest_one(self, path: Path, sha: str, vehicle: str, bogie: str,
                     cfg: Config) -> RunInfo:
@@ -235,15 +256,40 @@ def discover(paths: Sequence[str | Path], vehicle: str | None,
             found = [(f, f.relative_to(p).parts[:-1]) for f in sorted(p.rglob("*"))
                      if f.is_file() and f.suffix.lower() in LOG_SUFFIXES]
         else:
-            raise InputError(f"expected a CAN log or a directory, got {str(p)!r} (not found)")
+            raise InputError(f"expected a CAN log, a directory of logs or a gateway state "
+                             f"directory, got {str(p)!r} (not found)")
         for f, parts in found:
             if f.suffix.lower() not in LOG_SUFFIXES:
                 raise InputError(f"expected a CAN log ending in {list(LOG_SUFFIXES)}, "
                                  f"got {str(f)!r}")
-            veh = vehicle or (parts[0] if len(parts) >= 2 else None)
-            bog = bogie or (parts[1] if len(parts) >= 2 else None)
-            if veh is None or bog is None:
-                raise InputError(f"expected {str(f)!r} under VEHICLE/BOGIE/ folders, or "
-                                 f"--vehicle and --bogie, got neither")
-            out.append((f, check_name("vehicle", veh), check_name("bogie", bog)))
+            out.append((f, *unit_of(repr(str(f)), parts, vehicle, bogie)))
+    return out
+
+
+def unit_of(what: str, folders: tuple[str, ...], vehicle: str | None,
+            bogie: str | None) -> tuple[str, str]:
+    """(vehicle, bogie) of a file or directory from its first two ``folders`` below the
+    directory given, ``vehicle``/``bogie`` overriding them; InputError if neither."""
+    veh = vehicle or (folders[0] if len(folders) >= 2 else None)
+    bog = bogie or (folders[1] if len(folders) >= 2 else None)
+    if veh is None or bog is None:
+        raise InputError(f"expected {what} under VEHICLE/BOGIE/ folders, or --vehicle and "
+                         f"--bogie, got neither")
+    return check_name("vehicle", veh), check_name("bogie", bog)
+
+
+def discover_states(paths: Sequence[str | Path], vehicle: str | None,
+                    bogie: str | None) -> list[tuple[Path, str, str]]:
+    """(state directory, vehicle, bogie) for every gateway state directory among or under
+    ``paths`` (one holding ``estimates.jsonl`` or ``alerts.jsonl``), sorted; named like
+    logs: ``VEHICLE/BOGIE/...`` below the directory given, or ``--vehicle``/``--bogie``."""
+    out: list[tuple[Path, str, str]] = []
+    for p in map(Path, paths):
+        if not p.is_dir():
+            continue
+        for d in [p, *sorted(x for x in p.rglob("*") if x.is_dir())]:
+            if not is_state_dir(d):
+                continue
+            out.append((d, *unit_of(f"state directory {str(d)!r}", d.relative_to(p).parts,
+                                    vehicle, bogie)))
     return out

@@ -12,9 +12,9 @@ import json
 import logging
 import os
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from gateway.errors import StateError
 
@@ -158,6 +158,22 @@ def read_jsonl(path: Path) -> list[tuple[int, dict[str, Any]]]:
         else:
             raise StateError(f"{path}:{i + 1}: expected a JSON object per line, "
                              f"got {line[:60]!r}")
+    return out
+
+
+T = TypeVar("T")
+
+
+def read_records(path: Path, what: str, decode: Callable[[dict[str, Any]], T]) -> list[T]:
+    """:func:`read_jsonl`, each object through ``decode``; a record it rejects is a
+    StateError "<path>:<line>: expected <what> record, got ..."."""
+    out = []
+    for line_no, obj in read_jsonl(path):
+        try:
+            out.append(decode(obj))
+        except (KeyError, TypeError, ValueError, RecursionError) as err:
+            raise StateError(f"{path}:{line_no}: expected {what} record, got "
+                             f"{json.dumps(obj)[:80]} ({err!r})") from err
     return out
 
 

@@ -54,7 +54,7 @@ from gateway.sinks.store.files import (
     file_kind,
     first_line,
     fsync_dir,
-    read_jsonl,
+    read_records,
     read_regular,
 )
 from gateway.sinks.store.ledger import SeqLedger, read_ledger
@@ -293,14 +293,7 @@ class StateStore:
     def _read_file(self, path: Path, name: str, decode: Callable[[dict[str, Any]], T]
                    ) -> list[T]:
         try:
-            out = []
-            for line_no, obj in read_jsonl(path):
-                try:
-                    out.append(decode(obj))
-                except (KeyError, TypeError, ValueError, RecursionError) as err:
-                    raise StateError(f"{path}:{line_no}: expected a {name} record, got "
-                                     f"{json.dumps(obj)[:80]} ({err!r})") from err
-            return out
+            return read_records(path, f"a {name}", decode)
         except (StateError, OSError) as err:
             if self._on_corrupt == "raise":
                 if isinstance(err, OSError):
