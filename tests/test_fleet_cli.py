@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -51,3 +53,22 @@ def test_ingest_needs_vehicle_and_bogie_for_a_loose_log(tmp_path: Path) -> None:
     assert out.returncode != 0
     assert "expected" in out.stderr and "--vehicle and --bogie" in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_fleet_demo_command_runs_the_whole_loop(tmp_path: Path) -> None:
+    # the README's command, small: simulate (a subprocess) -> ingest -> replay on the
+    # embedded LocalCluster -> report; the failed damper comes out on top
+    pytest.importorskip("distributed")
+    out = subprocess.run([sys.executable, "-m", "gateway", "fleet", "demo", "--out",
+                          str(tmp_path / "demo"), "--vehicles", "2", "--days", "4",
+                          "--run-seconds", "6", "--particles", "200", "--no-progress"],
+                         capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-2000:]
+    lines = out.stdout.splitlines()
+    table = lines[next(i for i, s in enumerate(lines) if s.lstrip().startswith("# unit")) + 1:]
+    assert [r.split()[1] for r in table] == ["V02/B1", "V01/B1"], out.stdout
+    assert table[0].split()[2:4] == ["Csy", "crossed"] and table[0].endswith("csy-failing")
+    assert "replayed 8 runs on 2 Dask workers" in out.stdout
+    page = (tmp_path / "demo" / "report" / "report.html").read_text(encoding="utf-8")
+    assert page.count("data:image/png;base64,") == 3
