@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("distributed")
@@ -29,11 +30,11 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("fleet")
     simulate_fleet(SPEC, root / "sim")
     store = Store(root / "store")
-    first = store.ingest([root / "sim" / "logs"], CFG)
-    assert len(first.added) == SPEC.vehicles * SPEC.days and not first.skipped
     attempts = root / "attempts"
     attempts.mkdir()
-    with dask_client(workers=2) as client:
+    with dask_client(workers=2) as client:     # ingest and replay, one log/run per task
+        first = store.ingest([root / "sim" / "logs"], CFG, client=client)
+        assert len(first.added) == SPEC.vehicles * SPEC.days and not first.skipped
         rep = replay_store(store, CFG, client, attempts_dir=str(attempts), progress=False)
     assert (rep.ran, rep.done_before, rep.workers) == (len(first.added), 0, 2)
     build_report(store, estimator_version(CFG), root / "report")
@@ -52,6 +53,27 @@ def test_ingest_is_idempotent(fleet: dict[str, Path]) -> None:
     assert {(r.vehicle, r.bogie) for r in before} == {("V01", "B1"), ("V02", "B1"),
                                                        ("V03", "B1")}
     assert all(r.grid_points > 5000 and r.day.startswith("2026-01-") for r in before)
+
+
+def test_ingest_in_this_process_stores_what_the_dask_tasks_stored(
+        fleet: dict[str, Path], tmp_path: Path) -> None:
+    # one contract, two ways to run it: the same manifest lines, equal tables and metadata
+    import pyarrow.parquet as pq
+
+    dask_store = Store(fleet["store"])
+    here = Store(tmp_path / "store")
+    rep = here.ingest([fleet["root"] / "sim" / "logs"], CFG)
+    key = {r.run_id: r for r in dask_store.runs()}
+    assert len(rep.added) == len(key) and not rep.skipped
+    assert sorted(r.run_id for r in here.runs()) == sorted(key)
+    for r in here.runs():
+        assert r == key[r.run_id]
+        a = pq.read_table(here.root / r.samples_path)
+        b = pq.read_table(dask_store.root / r.samples_path)
+        assert a.schema.equals(b.schema, check_metadata=True), r.run_id
+        for col in a.column_names:          # NaN marks a missing sample: equal here
+            assert np.array_equal(a.column(col).to_numpy(), b.column(col).to_numpy(),
+                                  equal_nan=col != "update"), (r.run_id, col)
 
 
 def test_each_run_replayed_once_with_one_result(fleet: dict[str, Path]) -> None:

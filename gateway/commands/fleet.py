@@ -7,10 +7,12 @@ only here, when a fleet command runs, never by the vehicle's service.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +31,15 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=SEED, help="override [estimator] seed")
 
 
-def _replay_opts(p: argparse.ArgumentParser) -> None:
+def _cluster_opts(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--scheduler", metavar="tcp://HOST:8786",
-                   help="a running Dask scheduler (default: an embedded LocalCluster)")
+                   help=f"a running Dask scheduler (default: {default})")
     p.add_argument("--workers", type=integer(1, 1024),
                    help="LocalCluster worker processes (default: the machine's cores)")
+
+
+def _replay_opts(p: argparse.ArgumentParser) -> None:
+    _cluster_opts(p, "an embedded LocalCluster")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--attempts-dir", metavar="DIR",
                    help="write one file per task execution there (an audit of retries)")
@@ -48,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "VEHICLE/BOGIE/ folders holding either")
     p.add_argument("--vehicle", help="vehicle name for every log given (default: its folder)")
     p.add_argument("--bogie", help="bogie name for every log given (default: its folder)")
+    _cluster_opts(p, "this process; --workers N: an embedded LocalCluster, one log per task")
     _common(p)
     p.set_defaults(func=run_ingest)
     p = fsub.add_parser("replay", help="re-estimate every stored run, one Dask task per run")
@@ -104,26 +111,44 @@ def run_ingest(args: argparse.Namespace) -> int:
         if k == n or k % 20 == 0:
             print(f"ingested {k}/{n} files", file=sys.stderr, flush=True)
 
-    rep = store.ingest(args.paths, _config(args), vehicle=args.vehicle, bogie=args.bogie,
-                       progress=progress)
+    with contextlib.ExitStack() as stack:
+        client = (stack.enter_context(_client(args)) if args.scheduler or args.workers
+                  else None)
+        rep = store.ingest(args.paths, _config(args), vehicle=args.vehicle, bogie=args.bogie,
+                           client=client, progress=progress)
+    _print_ingest(rep, args.store)
+    return 0
+
+
+def _print_ingest(rep: Any, store: str) -> None:
     points = sum(r.grid_points for r in rep.added)
     print(f"ingested {len(rep.added)} runs ({points} grid points) and {len(rep.states)} state "
           f"directories ({sum(s.estimates for s in rep.states)} estimates, "
           f"{sum(s.alerts for s in rep.states)} alert events new), skipped "
-          f"{len(rep.skipped)} already in the store -> {args.store}")
-    return 0
+          f"{len(rep.skipped)} already in the store -> {store}")
 
 
-def _replay(store: Any, cfg: Config, args: argparse.Namespace) -> Any:
+@contextlib.contextmanager
+def _client(args: argparse.Namespace) -> Iterator[Any]:
+    """The Dask client of ``--scheduler``/``--workers``, the cluster's INFO chatter quiet."""
     import distributed  # noqa: F401 - sets its loggers' levels; quieten them after
 
-    from gateway.fleet.replay import dask_client, replay_store
+    from gateway.fleet.replay import dask_client
 
-    for name in list(logging.root.manager.loggerDict):   # the cluster's INFO chatter
+    for name in list(logging.root.manager.loggerDict):
         if name.split(".")[0] in ("distributed", "tornado"):
             logging.getLogger(name).setLevel(logging.WARNING)
+    with dask_client(args.scheduler, args.workers) as client:
+        yield client
+
+
+def _replay(store: Any, cfg: Config, args: argparse.Namespace, client: Any = None) -> Any:
+    from gateway.fleet.replay import replay_store
+
     try:
-        with dask_client(args.scheduler, args.workers) as client:
+        with contextlib.ExitStack() as stack:
+            if client is None:
+                client = stack.enter_context(_client(args))
             rep = replay_store(store, cfg, client, progress=not args.no_progress,
                                attempts_dir=args.attempts_dir)
     except KeyboardInterrupt:
@@ -173,7 +198,7 @@ def _print_ranking(rank: list[dict[str, object]], truth: dict[str, Any] | None) 
 
 def run_demo(args: argparse.Namespace) -> int:
     """Simulate with the installed simulator in a subprocess (the product never imports
-    it), then ingest, replay on the embedded LocalCluster and report."""
+    it), then ingest and replay on one embedded LocalCluster, and report."""
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sim = out / "sim"
@@ -188,11 +213,11 @@ def run_demo(args: argparse.Namespace) -> int:
                              f"{' '.join(cmd[1:])}")
     cfg = _config(args)
     store = _store(str(out / "store"), must_exist=False)
-    print("== ingest", flush=True)
-    rep = store.ingest([sim / "logs"], cfg)
-    print(f"ingested {len(rep.added)} runs, skipped {len(rep.skipped)} already stored")
-    print("== replay (Dask)", flush=True)
-    _replay(store, cfg, args)
+    with _client(args) as client:
+        print("== ingest (Dask)", flush=True)
+        _print_ingest(store.ingest([sim / "logs"], cfg, client=client), str(out / "store"))
+        print("== replay (Dask)", flush=True)
+        _replay(store, cfg, args, client)
     print("== report", flush=True)
     rank = _report(store, cfg, str(out / "report"), "advisory")
     truth = json.loads((sim / "truth.json").read_text(encoding="utf-8"))

@@ -29,6 +29,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -45,6 +46,8 @@ log = logging.getLogger(__name__)
 LOG_SUFFIXES = (".log", ".asc", ".blf")
 MANIFEST = "manifest.jsonl"
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+INGEST_RETRIES = 2
+"""Re-runs of an ingest task that raised (a lost worker is rescheduled anyway)."""
 EPOCH_MIN_S = 946_684_800.0
 """2000-01-01 UTC: a log whose clock starts before this has relative timestamps."""
 
@@ -158,10 +161,12 @@ class Store:
 
     # ------------------------------------------------------------------ ingest
     def ingest(self, paths: Sequence[str | Path], cfg: Config, *, vehicle: str | None = None,
-               bogie: str | None = None,
+               bogie: str | None = None, client: Any = None,
                progress: Callable[[int, int], None] | None = None) -> IngestReport:
         """Ingest CAN logs (files, or directories searched for .log/.asc/.blf) and gateway
-        state directories (given, or found in those directories)."""
+        state directories (given, or found in those directories). With a Dask ``client``
+        the logs are decoded one per task on its workers (which must see the logs and the
+        store at the same paths); the manifest is written here, as each task finishes."""
         files = discover(paths, vehicle, bogie)
         states = discover_states(paths, vehicle, bogie)
         added: list[RunInfo] = []
@@ -181,43 +186,71 @@ class Store:
                 known_states.add(snap.sha256)
                 new_states.append(sinfo)
             known = {r.sha256 for r in self.runs()}
-            for k, (path, veh, bog) in enumerate(files):
+            todo: list[tuple[str, str, str, str]] = []
+            for path, veh, bog in files:
                 sha = file_sha256(path)
                 if sha in known:
                     skipped.append(str(path))
                 else:
-                    info = self._ingest_one(path, sha, veh, bog, cfg)
                     known.add(sha)
-                    added.append(info)
+                    todo.append((str(path.resolve()), sha, veh, bog))
+            root = str(self.root.resolve())
+            for info in _ingest_all(root, todo, cfg, client):
+                self._append(info)
+                added.append(info)
                 if progress is not None:
-                    progress(k + 1, len(files))
+                    progress(len(added), len(todo))
         return IngestReport(tuple(added), tuple(skipped), tuple(new_states))
-
-    def _ingest_one(self, path: Path, sha: str, vehicle: str, bogie: str,
-                    cfg: Config) -> RunInfo:
-        s = log_samples(path, cfg)
-        if len(s.t_s) and not s.t_s[0] >= EPOCH_MIN_S:
-            raise InputError(f"expected absolute (Unix epoch) timestamps in {str(path)!r} to "
-                             f"date the run, got a clock starting at {s.t_s[0]:.3f} s")
-        t0 = float(s.t_s[0]) if len(s.t_s) else float("nan")
-        day = (dt.datetime.fromtimestamp(t0, dt.UTC).date().isoformat() if len(s.t_s)
-               else "unknown")
-        info = RunInfo(run_id=sha[:16], sha256=sha, source=str(path.resolve()), vehicle=vehicle,
-                       bogie=bogie, day=day, t0_s=t0,
-                       t1_s=float(s.t_s[-1]) if len(s.t_s) else float("nan"),
-                       grid_points=len(s.t_s), frames=s.frames, sensors=s.sensors)
-        if len(s.t_s):
-            write_atomic_table(samples_table(s, info), self.root / info.samples_path)
-        else:
-            log.warning("%s: no grid sample (frames %d, rejected %s)", path, s.frames,
-                        s.rejected)
-        self._append(info)
-        return info
 
     # -------------------------------------------------------------------- read
     def samples(self, info: RunInfo) -> RunSamples:
         """The stored front-end output of a run."""
         return read_samples(self.root / info.samples_path)
+
+
+def _ingest_all(root: str, todo: list[tuple[str, str, str, str]], cfg: Config,
+                client: Any) -> Iterator[RunInfo]:
+    """:func:`ingest_log` over ``todo`` (path, sha256, vehicle, bogie): here, in order, or
+    one Dask task per log, yielded as they finish (the rest cancelled if one fails)."""
+    if client is None:
+        for path, sha, veh, bog in todo:
+            yield ingest_log(root, path, sha, veh, bog, cfg)
+        return
+    from distributed import as_completed
+
+    futures = [client.submit(ingest_log, root, path, sha, veh, bog, cfg,
+                             key=f"railgw-ingest-{sha[:16]}", retries=INGEST_RETRIES,
+                             pure=False) for path, sha, veh, bog in todo]
+    try:
+        for fut in as_completed(futures):
+            yield fut.result()
+    except BaseException:
+        client.cancel(futures)
+        raise
+
+
+def ingest_log(root: str, path: str, sha: str, vehicle: str, bogie: str,
+               cfg: Config) -> RunInfo:
+    """One log through the service's front end into ``root``'s samples (written
+    atomically under the run id, so a retried task rewrites the same file); its manifest
+    line is the caller's to write."""
+    s = log_samples(path, cfg)
+    if len(s.t_s) and not s.t_s[0] >= EPOCH_MIN_S:
+        raise InputError(f"expected absolute (Unix epoch) timestamps in {path!r} to "
+                         f"date the run, got a clock starting at {s.t_s[0]:.3f} s")
+    t0 = float(s.t_s[0]) if len(s.t_s) else float("nan")
+    day = (dt.datetime.fromtimestamp(t0, dt.UTC).date().isoformat() if len(s.t_s)
+           else "unknown")
+    info = RunInfo(run_id=sha[:16], sha256=sha, source=path, vehicle=vehicle,
+                   bogie=bogie, day=day, t0_s=t0,
+                   t1_s=float(s.t_s[-1]) if len(s.t_s) else float("nan"),
+                   grid_points=len(s.t_s), frames=s.frames, sensors=s.sensors)
+    if len(s.t_s):
+        write_atomic_table(samples_table(s, info), Path(root) / info.samples_path)
+    else:
+        log.warning("%s: no grid sample (frames %d, rejected %s)", path, s.frames,
+                    s.rejected)
+    return info
 
 
 def samples_table(s: RunSamples, info: RunInfo) -> pa.Table:
