@@ -134,3 +134,27 @@ def test_a_corrupt_record_is_one_line_naming_file_and_line(tmp_path: Path) -> No
     err = out.stderr.strip().splitlines()
     assert len(err) == 1 and "estimates.jsonl:3: expected an estimate-history record" in err[0]
     assert not (tmp_path / "store" / "onboard").exists()
+
+
+def test_a_unit_known_only_from_its_state_directory_is_trended(tmp_path: Path) -> None:
+    # no logs kept: the report trends the vehicle's own estimates, one point a day
+    import csv
+
+    from gateway.fleet.report import build_report
+
+    _write_days(tmp_path / "in" / "V03" / "B1" / "state", Clock(), range(0, 7), 1)
+    store = Store(tmp_path / "store")
+    store.ingest([tmp_path / "in"], Config())
+    rank = build_report(store, "none-replayed", tmp_path / "report")
+    assert [(r["vehicle"], r["parameter"], r["status"]) for r in rank] == [
+        ("V03", "Csy", "crossed")]
+    with open(tmp_path / "report" / "trends.csv", encoding="utf-8", newline="") as f:
+        csy = next(r for r in csv.DictReader(f) if r["parameter"] == "Csy")
+    true_s = T0_S + 5 * DAY_S + 60.0       # 1 - 0.05 d meets the advisory 0.75 at day 5
+    assert float(csy["crossing_lo_s"]) <= true_s <= float(csy["crossing_hi_s"]), csy
+    assert int(csy["runs"]) == 7
+    with open(tmp_path / "report" / "alerts.csv", encoding="utf-8", newline="") as f:
+        alerts = list(csv.DictReader(f))
+    assert [(a["source"], a["severity"], a["state"]) for a in alerts] == [
+        ("onboard", "advisory", "raised")]
+    assert (tmp_path / "report" / "unit-V03-B1.png").stat().st_size > 0

@@ -98,7 +98,8 @@ def _config(args: argparse.Namespace) -> Config:
 def _store(path: str, must_exist: bool = True) -> Any:
     from gateway.fleet.store import Store
 
-    if must_exist and not Path(path, "manifest.jsonl").is_file():
+    if must_exist and not any(Path(path, m).is_file() for m in ("manifest.jsonl",
+                                                                  "state-manifest.jsonl")):
         raise InputError(f"expected a fleet store (with manifest.jsonl), got {path!r}: run "
                          f"'railgw fleet ingest' first")
     return Store(path)

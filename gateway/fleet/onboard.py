@@ -86,6 +86,22 @@ def state_infos(root: Path) -> list[StateInfo]:
     return out
 
 
+def onboard_units(root: Path) -> list[tuple[str, str]]:
+    """(vehicle, bogie) of every unit with an ingested state directory, sorted."""
+    return sorted({(s.vehicle, s.bogie) for s in state_infos(root)})
+
+
+def daily_points(board: OnboardHistory) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """A unit's on-board history as one point per UTC day: its last estimate that day
+    (``wall_s``, ``mean`` (3,), ``std`` (3,)), oldest first; the trend input for a unit
+    whose logs were not kept."""
+    last: dict[str, int] = {}
+    for k, w in enumerate(board.wall_s):
+        last[_day(float(w))] = k
+    return [(float(board.wall_s[k]), board.mean[k], board.std[k])
+            for _, k in sorted(last.items())]
+
+
 def _day(wall_s: float) -> str:
     return dt.datetime.fromtimestamp(wall_s, dt.UTC).date().isoformat()
 

@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from gateway.errors import InputError
-from gateway.fleet.onboard import OnboardHistory, read_onboard
+from gateway.fleet.onboard import OnboardHistory, daily_points, onboard_units, read_onboard
 from gateway.fleet.replay import result_path
 from gateway.fleet.runs import NOMINAL, PARAMS, RunEstimates, thresholds, unit_alerts
 from gateway.fleet.store import Store
@@ -81,7 +81,7 @@ def level_thresholds(level: str) -> dict[str, tuple[float, str]]:
 def load_runs(store: Store, version: str) -> list[RunRow]:
     """Each replayed run's final estimate, with the alert events raised during the run by
     the gateway's policy run over the unit's runs in calendar order
-    (:func:`gateway.fleet.runs.unit_alerts`)."""
+    (:func:`gateway.fleet.runs.unit_alerts`); then :func:`onboard_rows`."""
     finals = []
     series: dict[tuple[str, str], list[RunEstimates]] = {}
     root = store.root.resolve()
@@ -99,9 +99,6 @@ def load_runs(store: Store, version: str) -> list[RunRow]:
         series.setdefault((info.vehicle, info.bogie), []).append(
             RunEstimates(t, mean, std, ess, ()))
         finals.append((info, float(t[-1]), mean[-1], std[-1]))
-    if not finals:
-        raise InputError(f"expected replay results for estimator {version} in {store.root}, "
-                         f"got none (run 'railgw fleet replay' first)")
     alerts = {unit: unit_alerts(runs) for unit, runs in series.items()}
     rows = []
     for info, t_end, m, sd in finals:
@@ -112,7 +109,26 @@ def load_runs(store: Store, version: str) -> list[RunRow]:
                            tuple(sd[j] / NOMINAL[p] for j, p in enumerate(PARAMS)),
                            tuple(a for a in alerts[unit]
                                  if t_start <= float(a["t_s"]) <= t_end)))  # type: ignore[arg-type]
+    rows += onboard_rows(store, {(r.vehicle, r.bogie) for r in rows})
+    if not rows:
+        raise InputError(f"expected replay results for estimator {version} or ingested state "
+                         f"directories in {store.root}, got neither (run 'railgw fleet "
+                         f"replay' first)")
     return sorted(rows, key=lambda r: (r.vehicle, r.bogie, r.t_s))
+
+
+def onboard_rows(store: Store, replayed: set[tuple[str, str]]) -> list[RunRow]:
+    """For units known only from state directories (no replayed run), one row per day
+    from the vehicle's own estimates (run id ``onboard-<day>``)."""
+    rows = []
+    for veh, bog in onboard_units(store.root):
+        if (veh, bog) in replayed:
+            continue
+        for wall_s, mean, std in daily_points(read_onboard(store.root, veh, bog)):
+            rows.append(RunRow(veh, bog, f"onboard-{iso(wall_s)[:10]}", wall_s,
+                               tuple(mean[j] / NOMINAL[p] for j, p in enumerate(PARAMS)),
+                               tuple(std[j] / NOMINAL[p] for j, p in enumerate(PARAMS)), ()))
+    return rows
 
 
 def unit_trends(rows: list[RunRow], level: str) -> list[UnitTrends]:
