@@ -80,7 +80,7 @@ PRIOR_SAMPLES = 2**13
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
-            "_subset_run")
+            "_subset_run", "_at_prior", "_prior_v")
 
 
 class RBPF:
@@ -96,6 +96,8 @@ class RBPF:
         self._steady = False
         self._warm_left = 0
         self._subset_run = 0
+        self._at_prior = False
+        self._prior_v = float("nan")
         m = config.n_particles
         self._nch = n_chunks(m)
         self._ll = np.zeros(self._nch * LANES)
@@ -175,6 +177,7 @@ class RBPF:
             self._steady = False
             self._warm_left = self._warm_steps()
             self._p0_set = True
+            self._at_prior, self._prior_v = True, self._v_ref
         self._recompute()
 
     def _own_prior(self) -> np.ndarray:
@@ -213,6 +216,18 @@ class RBPF:
         self._P = to_lanes(P.reshape(len(P), -1))
         self._steady = False
         self._warm_left = self._warm_steps()
+
+    def _warm_up(self, use: np.ndarray) -> None:
+        """Fast mode's exact warm-up counts samples with every sensor: samples without
+        data converge no state, and steady gains handed over before the states have seen
+        ``fast_warmup_s`` of data score their start-up transient with the converged
+        innovation variances, which favours the wrong particles (docs/estimator.md,
+        "Start of every filter"). A sample with only some sensors starts it again."""
+        if bool(use.any()):
+            self._at_prior = False
+            self._warm_left = self._warm_left - 1 if bool(use.all()) else self._warm_steps()
+        if self._warm_left <= 0:
+            self._enter_steady()
 
     def _warm_steps(self) -> int:
         return int(round(self.config.fast_warmup_s * self.config.fs_hz)) if self._fast else 0
@@ -261,14 +276,16 @@ class RBPF:
         self._ll[:] = 0.0
         self._nis[:] = 0.0
         self._dead[:] = False
-        if not self._steady:
+        waiting = not self._steady and self._fast and self._at_prior and not use.any()
+        if waiting:
+            pass     # the filters wait at their prior (x = 0, P0) for their first data
+        elif not self._steady:
+            if self._fast and self._at_prior and self._prior_v != self._v_ref:
+                self._set_speed(self._v_ref, restart=True)    # the prior at today's speed
             kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
                     self._P0, self._ll, self._nis, self._dead)
             if self._fast:
-                partial = bool(use.any()) and not bool(use.all())
-                self._warm_left = self._warm_steps() if partial else self._warm_left - 1
-                if self._warm_left <= 0:
-                    self._enter_steady()
+                self._warm_up(use)
         elif use.all() or not use.any():
             self._subset_run = 0
             kf_steady(self._X, self._phi, self._H, y, use, self._gains, self._ll, self._nis,
@@ -286,7 +303,7 @@ class RBPF:
                                                    self._weights())
         self.t_s = float(sample.t_s)
         self.n_steps += 1
-        self.since_move += 1
+        self.since_move += int(not waiting)
         used = bool(use.any())
         self.updated_since_move += int(used)
         self._w_cache, self._w_of = w, self.logw
@@ -456,6 +473,7 @@ class RBPF:
             self._P = self._own_prior()
             self._steady = False
             self._warm_left = self._warm_steps()
+            self._at_prior, self._prior_v = True, self._v_ref
         elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
         self._recompute()
@@ -510,6 +528,8 @@ class RBPF:
         for k in _SCALARS:
             if sc.get(k) is not None:
                 setattr(self, k, type(getattr(self, k))(sc[k]))
+        if sc.get("_at_prior") is None:     # a checkpoint from before the field existed
+            self._at_prior = False
         for k, v in arrays.items():
             setattr(self, k, v)
         if self._steady:
