@@ -16,11 +16,14 @@ from test_identify_cli import _one_line_error, _run
 from firmware_sim.output import write_log
 from firmware_sim.scenarios import V_PAPER, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
+from gateway.config import Config, with_overrides
 from gateway.identify.canlog import read_can_log
 from gateway.model.vehicle import SENSOR_NOISE_VAR, SENSORS_3, SENSORS_5
 from gateway.offline.interchange import write_csv
 
 FS_HZ = 1000.0
+RESOLUTION = {"acc_w1": 5e-4, "acc_w2": 5e-4, "acc_b": 5e-4, "gyro_b": 5e-5, "acc_bd": 5e-4}
+"""The DBC's scale of each sensor signal (docs/can-bus.md)."""
 
 
 def _interchange_of(sim: Simulation, duration_s: float) -> tuple[np.ndarray, dict]:
@@ -45,12 +48,14 @@ def paper_run(tmp_path_factory):
     return out / "run.log", out / "run.csv"
 
 
+@pytest.mark.parametrize("interpolation", ["nearest", "linear"])
 @pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
-def test_log_becomes_the_recording_of_its_samples(tmp_path, suffix):
+def test_log_becomes_the_recording_of_its_samples(tmp_path, suffix, interpolation):
     """Any python-can log: all sensors, uniform grid, the nodes' values, the VEH speed."""
     sim = Simulation(get_scenario("paper"), SimConfig(duration_s=1.0, seed=3), record=True)
     write_log(sim.messages(), tmp_path / f"run{suffix}")
-    rec = read_can_log(tmp_path / f"run{suffix}")
+    cfg = with_overrides(Config(), {"resampler.interpolation": interpolation})
+    rec = read_can_log(tmp_path / f"run{suffix}", cfg)
     assert rec.sensors == SENSORS_5
     dt = np.diff(rec.t_s)
     assert np.allclose(dt, 1 / FS_HZ, rtol=1e-9, atol=0)
@@ -58,6 +63,14 @@ def test_log_becomes_the_recording_of_its_samples(tmp_path, suffix):
     assert np.allclose(rec.signals["speed"], V_PAPER)
     t_csv, csv = _interchange_of(sim, 1.0)
     for s in SENSORS_5:
+        if interpolation == "nearest":     # every grid value is one of the node's samples
+            assert sim.records is not None
+            node = next(r for r in sim.records.values() if r.values.get(s))
+            t_node, v = np.concatenate(node.t_true_s), node.array(s)
+            for t, x in zip(rec.t_s[5:-5], rec.signals[s][5:-5], strict=True):
+                near = v[np.abs(t_node - t) < 4e-3]       # receive time = true + latency
+                assert np.min(np.abs(near - x)) <= 0.6 * RESOLUTION[s], (s, t)
+            continue
         ref = np.interp(rec.t_s, t_csv, csv[s])      # true time ~ receive time - latency
         err = rec.signals[s][5:-5] - ref[5:-5]   # the sensor noise, interpolated differently
         bound = 0.1 * np.std(ref[5:-5]) + 0.7 * np.sqrt(SENSOR_NOISE_VAR[s])

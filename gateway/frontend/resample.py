@@ -8,11 +8,18 @@ Candidate split: the statistics and gap-reason records.
   by its fitted clock model (:mod:`gateway.frontend.clocksync`): drift, jitter and reordering
   are absorbed there. Grid point ``j`` is at ``t_s = j / fs_hz`` on the receive clock.
 - **Values.** Each sensor at grid time t is interpolated linearly between its node's
-  samples ``floor(k(t))`` and ``floor(k(t)) + 1``. If either is absent (a gap of more
-  than one node period, i.e. >= 2 periods between the neighbours used) the entry is
-  MISSING; a NotAvailable value makes it NOT_AVAILABLE; a frame pushed as ``suspect``
-  makes it SUSPECT (value kept). Speed (VEH_Speed, 10 ms) is interpolated, or held
-  from the last sample up to ``speed_timeout_s``, else NaN.
+  samples ``floor(k(t))`` and ``floor(k(t)) + 1`` (``interpolation="linear"``, the
+  default), or takes the nearer of the two (``"nearest"``). Linear interpolation at a
+  node phase between grid points averages two samples: it smooths the signal and
+  halves and correlates the sensor noise, which the estimator's white-noise model does
+  not know (λ biased low); the nearest sample keeps the noise white but shifts each
+  node by up to half a period, which biases Csy in a 5-sensor fit (docs/resampler.md
+  "Node timing": neither is the fix yet). In both
+  modes, if either neighbour is absent (a gap of more than one node period, i.e. >= 2
+  periods between the neighbours) the entry is MISSING; a NotAvailable value makes it
+  NOT_AVAILABLE; a frame pushed as ``suspect`` makes it SUSPECT (value kept). Speed
+  (VEH_Speed, 10 ms) is interpolated, or held from the last sample up to
+  ``speed_timeout_s``, else NaN.
 - **Emission.** Grid points are final, in order and once, as soon as every required
   node has all its samples up to the one after the point, or when the receive time
   (the newest frame's timestamp or ``pop_ready(now_s)``) passes the point by
@@ -82,6 +89,8 @@ from gateway.model.vehicle import SENSORS_5
 from gateway.records import DecodedFrame, GridSample, Quality
 
 LATERAL_MESSAGES: tuple[str, ...] = ("WSN_Lat", "BGN_Lat", "BDN_Lat")
+INTERPOLATIONS: tuple[str, ...] = ("linear", "nearest")
+"""How a node's samples become grid values (module docstring, "Values")."""
 SPEED_MESSAGE = "VEH_Speed"
 PAPER_LOWPASS_HZ: dict[str, float | None] = {
     "acc_w1": 40.0, "acc_w2": 40.0, "acc_b": 40.0, "gyro_b": 10.0, "acc_bd": 10.0}
@@ -147,8 +156,12 @@ class ResamplerConfig:
     speed_timeout_s: float = 0.1
     required_messages: tuple[str, ...] = LATERAL_MESSAGES
     clock: ClockParams = field(default_factory=ClockParams)
+    interpolation: str = "linear"
 
     def __post_init__(self) -> None:
+        if self.interpolation not in INTERPOLATIONS:
+            raise ConfigError(f"expected interpolation from {list(INTERPOLATIONS)}, got "
+                              f"{self.interpolation!r}")
         if not (math.isfinite(self.fs_hz) and self.fs_hz > 0):
             raise ConfigError(f"expected fs_hz > 0, got {self.fs_hz}")
         lp = self.lowpass_hz
@@ -333,6 +346,7 @@ class Resampler:
         """``periods_s``: each sensor message's cycle time, s (from the DBC:
         :meth:`gateway.can.codec.Codec.sensor_periods_s`); the resampler reads no file."""
         self.config = config
+        self._nearest = config.interpolation == "nearest"
         self._streams = _streams(config, periods_s)
         self._lateral = [s for s in self._streams.values() if s.lateral]
         cutoff_hz = cast("Mapping[str, float | None]", config.lowpass_hz)   # a dict by now
@@ -670,6 +684,8 @@ class Resampler:
                      else "lost"] += 1
                 continue
             f = kf - k0
+            if self._nearest:
+                f = 0.0 if f < 0.5 else 1.0
             v0, v1 = node.ring_v[s0], node.ring_v[s1]
             q = _SUSPECT if node.ring_suspect[s0] or node.ring_suspect[s1] else _OK
             for i, col in enumerate(stream.cols):
