@@ -10,6 +10,7 @@ works on :class:`RunSamples` and :class:`RunEstimates`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 from dataclasses import dataclass
@@ -71,12 +72,29 @@ def thresholds() -> dict[str, ParamPolicy]:
     return default_params()
 
 
+RESULT_CODE = ("estimator", "model", "alerts", "runtime")
+"""The gateway packages whose code makes a replay result (besides the settings)."""
+
+
 def estimator_version(cfg: Config) -> str:
-    """The gateway version plus a hash of every estimator setting: results are keyed by it,
-    so a new estimator or new settings re-process every run, and old results stay."""
+    """The gateway version plus a hash of every estimator setting and of the code that
+    makes a result (:data:`RESULT_CODE`): results are keyed by it, so a changed estimator
+    (even within one release) or new settings re-process every run, and old results stay."""
     settings = json.dumps({"estimator": dataclasses.asdict(cfg.estimator),
                            "resampler_fs_hz": cfg.resampler.fs_hz}, sort_keys=True)
-    return f"{__version__}-{hashlib.sha256(settings.encode()).hexdigest()[:10]}"
+    h = hashlib.sha256(settings.encode())
+    h.update(code_digest().encode())
+    return f"{__version__}-{h.hexdigest()[:10]}"
+
+
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 over the sources of :data:`RESULT_CODE` (relative path and bytes)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for f in sorted(p for pkg in RESULT_CODE for p in (root / pkg).rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
 
 
 def log_samples(path: str | Path, cfg: Config) -> RunSamples:
