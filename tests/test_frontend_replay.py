@@ -64,7 +64,12 @@ def test_timestamp_glitch_replay_keeps_updates_and_estimates(clean, tmp_path):
         assert _rel(rep, clean, name) < 0.01, (name, rep["estimates"], clean["estimates"])
 
 
-def test_second_sender_is_counted_excluded_and_harmless(clean, tmp_path):
+def test_second_sender_is_counted_excluded_and_harmless(tmp_path):
+    # the reference is the same simulation with the second sender never sending: adding a
+    # sender changes the simulator's random draws, so the default run is another noise
+    # realisation, and comparing with it measured that (Csy 3-4 %), not the exclusion
+    clean = _replay(_log(tmp_path / "clean.log", second_sender="BGN",
+                         second_sender_window_s=(1e9, 1e9)))
     rep = _replay(_log(tmp_path / "rogue.log", second_sender="BGN",
                             second_sender_window_s=(3.0, 6.0)))
     fe = rep["diagnostics"]["front_end"]
