@@ -101,17 +101,18 @@ def test_interrupted_replay_resumes_without_redoing_finished_runs(store: Store,
            "1", "--particles", "100", "--no-progress", "--attempts-dir", str(attempts)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        wait_for(lambda: any((store.root / "results").rglob("*.parquet")), 300,
-                 "a first result")
+        # one worker, one thread: the second task starts only once the first has written
+        # its result, so interrupting then leaves 1 or 2 runs done and 2 or 3 to resume
+        wait_for(lambda: len(list(attempts.iterdir())) >= 2, 300, "a second task to start")
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
+        out, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
     done = {p.name.removeprefix("run-").removesuffix(".parquet")
             for p in (store.root / "results").rglob("*.parquet")}
-    assert 1 <= len(done) < 4, (done, err[-500:])
+    assert 1 <= len(done) < 4, (done, proc.returncode, out[-300:], err[-500:])
     assert proc.returncode == 130, err[-500:]
     before = attempts_by_run(attempts)
     with dask_client(workers=2) as client:
