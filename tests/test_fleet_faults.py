@@ -99,7 +99,11 @@ def test_interrupted_replay_resumes_without_redoing_finished_runs(store: Store,
     attempts.mkdir()
     cmd = [sys.executable, "-m", "gateway", "fleet", "replay", str(store.root), "--workers",
            "1", "--particles", "100", "--no-progress", "--attempts-dir", str(attempts)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C as at a terminal: a shell starts background jobs with SIGINT ignored, and a
+    # child inherits that (Python then installs no KeyboardInterrupt handler), so a test
+    # run from a background job would otherwise send a signal the command never sees
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         # one worker, one thread: the second task starts only once the first has written
         # its result, so interrupting then leaves 1 or 2 runs done and 2 or 3 to resume
