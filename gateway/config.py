@@ -42,7 +42,11 @@ class ResamplerConfig:
     lowpass_bogie_acc_hz: float = 0.0
     lowpass_gyro_hz: float = 0.0
     lowpass_body_acc_hz: float = 0.0
-    interpolation: str = "linear"
+    interpolation: str = "sinc"
+
+
+INTERPOLATIONS: tuple[str, ...] = ("sinc", "linear", "nearest")
+"""How node samples become grid values (:mod:`gateway.frontend.resample`, "Values")."""
 
 
 @dataclass(frozen=True)
@@ -204,7 +208,7 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     # sensors sample at 1 kHz; the model's modes lie below 40 Hz
     ("resampler", "fs_hz"): Range(10.0, 10_000.0),
     ("resampler", "deadline_s"): Range(0.001, 10.0),
-    ("resampler", "interpolation"): OneOf(("linear", "nearest")),
+    ("resampler", "interpolation"): OneOf(INTERPOLATIONS),
     # 0 = off; else a cut-off in [0.1 Hz, fs_hz / 2) (Nyquist, checked below)
     ("resampler", "lowpass_wheelset_acc_hz"): Range(0.1, 5000.0, off=0.0, hi_open=True),
     ("resampler", "lowpass_bogie_acc_hz"): Range(0.1, 5000.0, off=0.0, hi_open=True),

@@ -55,3 +55,24 @@ def test_uneven_times_are_gridded_for_estimate_and_refused_by_identify() -> None
     assert np.allclose(np.diff(grid.t_s), 1.0 / grid.fs_hz, rtol=1e-9, atol=0)
     with pytest.raises(InputError, match="expected uniform sampling"):
         dataset_from_recording(rec, SENSORS)
+
+
+def test_uneven_times_keep_white_noise_white_and_a_signal_exact() -> None:
+    # issue 15: a recording on a clock 300 ppm fast against its grid sweeps every
+    # fraction between samples; linear interpolation there halves and correlates the
+    # noise, the band-limited fractional delay (gateway.frontend.fracdelay) does not
+    n = 8000
+    t = np.arange(n) * (1 + 300e-6) / FS_HZ + 0.3 / FS_HZ
+    rng = np.random.default_rng(4)
+    noise = rng.standard_normal(n)
+    grid_t = t[0] + np.arange(n - 40) / FS_HZ
+    inner = slice(20, -20)
+    got = interpolate(grid_t, t, noise, 1 / FS_HZ, bridge=False)[inner]
+    lin = np.interp(grid_t, t, noise)[inner]
+    assert 0.9 < got.var() < 1.05 and abs(np.corrcoef(got[1:], got[:-1])[0, 1]) < 0.1
+    assert lin.var() < 0.75                              # what linear does
+    signal = np.sin(2 * np.pi * 37.0 * t)               # 0.19 of the rate, band-limited
+    got = interpolate(grid_t, t, signal, 1 / FS_HZ, bridge=False)[inner]
+    want = np.sin(2 * np.pi * 37.0 * grid_t)[inner]
+    assert np.abs(got - want).max() < 1e-3
+    assert np.abs(np.interp(grid_t, t, signal)[inner] - want).max() > 0.05

@@ -16,8 +16,9 @@ import scipy.signal
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.can.codec import default_codec
+from gateway.can.codec import SENSOR_SIGNALS, default_codec
 from gateway.errors import ConfigError, FrameError, StateError
+from gateway.frontend.fracdelay import HALF_TAPS, TABLE
 from gateway.frontend.lowpass import LowpassState, design_lowpass, lowpass_step
 from gateway.frontend.resample import (
     INTERPOLATIONS,
@@ -103,6 +104,11 @@ def assert_matches_truth(sim: Simulation, sensor: str, t_s: np.ndarray, values: 
     if interpolation == "linear" or sensor == "speed":
         truth = np.interp(t_s - offset_s, t_true, v)
         excess = np.abs(values - truth) - (0.6 * step + change * timing_s / period_s)
+    elif interpolation == "sinc":
+        truth = windowed_sinc(t_s - offset_s, t_true, v)
+        # each tap's value is rounded to the DBC resolution: at most half a step each
+        rounding = (0.5 * np.abs(TABLE).sum(axis=1).max() + 0.1) * step
+        excess = np.abs(values - truth) - (rounding + 2 * change * timing_s / period_s)
     else:
         kf = np.interp(t_s - offset_s, t_true, np.arange(len(t_true), dtype=float))
         k0 = np.floor(kf).astype(int)
@@ -112,6 +118,26 @@ def assert_matches_truth(sim: Simulation, sensor: str, t_s: np.ndarray, values: 
         other = np.abs(values - v[np.where(near == k0, k0 + 1, k0)])
         excess = np.where(tie, np.minimum(err, other), err) - 0.6 * step
     assert excess.max() <= 0.0, (sensor, interpolation, excess.max())
+
+
+def windowed_sinc(t_s: np.ndarray, t_true: np.ndarray, v: np.ndarray, half: int = 16,
+                  beta: float = 8.0) -> np.ndarray:
+    """The band-limited value of samples ``v`` at ``t_true`` (uniform) at times ``t_s``,
+    computed here from its definition (Kaiser-windowed sinc, 2 * half taps, unit DC gain,
+    at the exact fraction): the reference for ``interpolation="sinc"``."""
+    kf = np.interp(t_s, t_true, np.arange(len(t_true), dtype=float))
+    k0 = np.floor(kf).astype(int)
+    i = np.arange(-half + 1, half + 1)
+    x = (kf - k0)[:, None] - i[None, :]
+    h = np.sinc(x) * np.i0(beta * np.sqrt(np.clip(1 - (x / half) ** 2, 0, None)))
+    h /= h.sum(axis=1, keepdims=True)
+    idx = k0[:, None] + i[None, :]
+    inside = (idx[:, 0] >= 0) & (idx[:, -1] < len(v))
+    idx = np.clip(idx, 0, len(v) - 1)
+    period_s = float(np.median(np.diff(t_true)))
+    whole = inside & (t_true[idx[:, -1]] - t_true[idx[:, 0]] < (2 * half - 0.5) * period_s)
+    # a tap's sample not sent (a dropout): the resampler's linear fallback
+    return np.where(whole, (h * v[idx]).sum(axis=1), np.interp(t_s, t_true, v))
 
 
 def assert_same(a: list[GridSample], b: list[GridSample]) -> None:
@@ -170,6 +196,8 @@ def test_grid_values_match_the_truth_interpolated(interpolation):
     offset = latency_offset_s(rs, sim)
     late = (g["t"] > SETTLE_S) & (g["t"] < 3.99)      # flush: the last point lacks a node
     assert np.all(g["q"][late] == Quality.OK)
+    if interpolation == "sinc":     # the flush's last points lack taps: linear there
+        late &= g["t"] < 3.99 - HALF_TAPS * 1e-3
     for i, sensor in enumerate(SENSORS_5):
         assert_matches_truth(sim, sensor, g["t"][late], g["v"][late, i], offset,
                              interpolation=interpolation)
@@ -355,3 +383,41 @@ def test_estimator_worker_imports_leave_out_the_filter_design():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120, check=True)
     assert proc.stdout.strip() == "False", proc.stdout
+
+
+# ---------------------------------------------------------------- node phase (issue 15)
+def _white_noise_frames(phase_s: float, seconds: float = 3.0, seed: int = 3
+                        ) -> tuple[list[DecodedFrame], np.ndarray]:
+    """Every lateral node sends unit white noise, sampled ``phase_s`` after the grid
+    points (plus a fixed 150 us latency); VEH a constant speed. Returns the frames in
+    receive order and the noise (n, 5) in SENSORS_5 order, row k = sample k."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * 1000)
+    noise = rng.standard_normal((n, len(SENSORS_5)))
+    frames = []
+    for k in range(n):
+        t = k * 1e-3 + phase_s + 150e-6
+        for message in ("WSN_Lat", "BGN_Lat", "BDN_Lat"):
+            values = {sig: float(noise[k, SENSORS_5.index(s)])
+                      for s, (msg, sig) in SENSOR_SIGNALS.items() if msg == message}
+            frames.append(DecodedFrame(message, 0, k % 16, k % 65_536, values, t))
+        if k % 10 == 0:
+            frames.append(DecodedFrame("VEH_Speed", 0, k % 16, (k // 10) % 65_536,
+                                       {"VEH_Speed": 42.5, "VEH_Odometer": 0.0}, t))
+    return frames, noise
+
+
+@pytest.mark.parametrize("interpolation", INTERPOLATIONS)
+def test_noise_between_grid_points_stays_white_with_its_variance(interpolation):
+    # the estimator assumes white sensor noise of known variance on every grid point;
+    # nodes sampling half-way between grid points must not change that (issue 15:
+    # linear interpolation halved and correlated it, and λ came out 3 % low)
+    frames, _ = _white_noise_frames(phase_s=0.5e-3, seconds=6.0)
+    _, out = run(frames, dataclasses.replace(RAW, interpolation=interpolation))
+    v = arrays(out)["v"][500:-100]                   # (n, 5): settled, flush left out
+    var = v.var(axis=0)                             # each +-0.02 (1 sd) from sampling
+    rho = (v[1:] * v[:-1]).mean(axis=0) / var       # lag-1 autocorrelation, likewise
+    if interpolation == "linear":                   # the defect, so the test can see it
+        assert np.all(var < 0.65) and np.all(rho > 0.3), (var, rho)
+    else:       # sinc: sum h^2 >= 0.93 at any fraction (tests/test_fracdelay.py)
+        assert np.all((var > 0.85) & (var < 1.1)) and np.all(np.abs(rho) < 0.15), (var, rho)

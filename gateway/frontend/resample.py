@@ -7,21 +7,25 @@ Candidate split: the statistics and gap-reason records.
 - **Times.** Each node's sample index is unwrapped and mapped to a receive-clock time
   by its fitted clock model (:mod:`gateway.frontend.clocksync`): drift, jitter and reordering
   are absorbed there. Grid point ``j`` is at ``t_s = j / fs_hz`` on the receive clock.
-- **Values.** Each sensor at grid time t is interpolated linearly between its node's
-  samples ``floor(k(t))`` and ``floor(k(t)) + 1`` (``interpolation="linear"``, the
-  default), or takes the nearer of the two (``"nearest"``). Linear interpolation at a
-  node phase between grid points averages two samples: it smooths the signal and
-  halves and correlates the sensor noise, which the estimator's white-noise model does
-  not know (λ biased low); the nearest sample keeps the noise white but shifts each
-  node by up to half a period, which biases Csy in a 5-sensor fit (docs/resampler.md
-  "Node timing": neither is the fix yet). In both
-  modes, if either neighbour is absent (a gap of more than one node period, i.e. >= 2
-  periods between the neighbours) the entry is MISSING; a NotAvailable value makes it
+- **Values.** Each sensor at grid time t sits at fraction f between its node's samples
+  ``k0 = floor(k(t))`` and ``k0 + 1``. ``interpolation="sinc"`` (the default) applies
+  the band-limited fractional delay of :mod:`gateway.frontend.fracdelay` (32 taps,
+  ``k0 - 15 .. k0 + 16``): it neither smooths the signal nor colours the sensor noise,
+  so a node's phase against the grid does not move the estimate (docs/resampler.md
+  "Node timing"); where a tap's sample is absent, suspect or NotAvailable the value
+  falls back to linear. ``"linear"`` interpolates between ``k0`` and ``k0 + 1``: at a
+  node phase between grid points it smooths the signal and halves and correlates the
+  sensor noise (λ biased low). ``"nearest"`` takes the nearer of the two: white noise,
+  but each node shifted by up to half a period (Csy biased in a 5-sensor fit). In all
+  modes the entry's quality follows ``k0`` and ``k0 + 1``: if either is absent (a gap
+  of more than one node period, i.e. >= 2 periods between the neighbours) the entry is
+  MISSING; a NotAvailable value makes it
   NOT_AVAILABLE; a frame pushed as ``suspect`` makes it SUSPECT (value kept). Speed
   (VEH_Speed, 10 ms) is interpolated, or held from the last sample up to
   ``speed_timeout_s``, else NaN.
 - **Emission.** Grid points are final, in order and once, as soon as every required
-  node has all its samples up to the one after the point, or when the receive time
+  node has all its samples up to the interpolator's last tap (``k0 + 16`` for
+  ``"sinc"``, 16 node periods of latency; ``k0 + 1`` otherwise), or when the receive time
   (the newest frame's timestamp or ``pop_ready(now_s)``) passes the point by
   ``deadline_s``; then the late node's entries are MISSING. A frame of a sample the
   grid has already passed is dropped and counted by reason (:data:`LATE_REASONS`);
@@ -73,7 +77,9 @@ from typing import cast
 import numpy as np
 
 from gateway.can.codec import SENSOR_SIGNALS
+from gateway.config import INTERPOLATIONS
 from gateway.errors import ConfigError, InputError, StateError
+from gateway.frontend import fracdelay
 from gateway.frontend.clocksync import (
     SAMPLE_INDEX_MODULUS,
     ClockParams,
@@ -89,8 +95,6 @@ from gateway.model.vehicle import SENSORS_5
 from gateway.records import DecodedFrame, GridSample, Quality
 
 LATERAL_MESSAGES: tuple[str, ...] = ("WSN_Lat", "BGN_Lat", "BDN_Lat")
-INTERPOLATIONS: tuple[str, ...] = ("linear", "nearest")
-"""How a node's samples become grid values (module docstring, "Values")."""
 SPEED_MESSAGE = "VEH_Speed"
 PAPER_LOWPASS_HZ: dict[str, float | None] = {
     "acc_w1": 40.0, "acc_w2": 40.0, "acc_b": 40.0, "gyro_b": 10.0, "acc_bd": 10.0}
@@ -156,7 +160,7 @@ class ResamplerConfig:
     speed_timeout_s: float = 0.1
     required_messages: tuple[str, ...] = LATERAL_MESSAGES
     clock: ClockParams = field(default_factory=ClockParams)
-    interpolation: str = "linear"
+    interpolation: str = "sinc"
 
     def __post_init__(self) -> None:
         if self.interpolation not in INTERPOLATIONS:
@@ -347,6 +351,9 @@ class Resampler:
         :meth:`gateway.can.codec.Codec.sensor_periods_s`); the resampler reads no file."""
         self.config = config
         self._nearest = config.interpolation == "nearest"
+        self._sinc = config.interpolation == "sinc"
+        self._ahead = fracdelay.HALF_TAPS if self._sinc else 1
+        """Samples after ``k0`` a grid point waits for."""
         self._streams = _streams(config, periods_s)
         self._lateral = [s for s in self._streams.values() if s.lateral]
         cutoff_hz = cast("Mapping[str, float | None]", config.lowpass_hz)   # a dict by now
@@ -371,6 +378,30 @@ class Resampler:
                              f"got one saved with {state.config}")
         self._st = state
         self._required = [state.nodes[m] for m in config.required_messages]
+        self._taps_k: dict[str, np.ndarray] = {}
+        """Per lateral message, (ring,) int64: the slot's index where its sample can be a
+        tap of the fractional delay (present, not suspect, finite), else ``_EMPTY``. A
+        cache of the ring, rebuilt from the state (never checkpointed)."""
+        self._taps_v: dict[str, np.ndarray] = {}
+        """Per lateral message, (ring, ncols) float: the slot's values."""
+        if self._sinc:
+            for stream in self._lateral:
+                self._cache_ring(stream, state.nodes[stream.message])
+
+    def _cache_ring(self, stream: _Stream, node: NodeState) -> None:
+        """Rebuild the tap cache of one node from its ring."""
+        size = len(node.ring_k)
+        self._taps_k[stream.message] = np.full(size, _EMPTY, dtype=np.int64)
+        self._taps_v[stream.message] = np.zeros((size, len(stream.cols)))
+        for slot, k in enumerate(node.ring_k):
+            if k != _EMPTY:
+                self._cache_slot(stream.message, node, slot)
+
+    def _cache_slot(self, message: str, node: NodeState, slot: int) -> None:
+        values = node.ring_v[slot]
+        usable = not node.ring_suspect[slot] and all(math.isfinite(x) for x in values)
+        self._taps_k[message][slot] = node.ring_k[slot] if usable else _EMPTY
+        self._taps_v[message][slot] = values
 
     # ------------------------------------------------------------------ public
     def snapshot(self) -> ResamplerState:
@@ -459,6 +490,8 @@ class Resampler:
         node.ring_k[slot] = k
         node.ring_v[slot] = stream.values(frame.values)
         node.ring_suspect[slot] = suspect
+        if self._sinc and stream.lateral:
+            self._cache_slot(stream.message, node, slot)
         node.k_stored = max(node.k_stored, k)
         if node.drop_k[slot] != k:
             node.receive(k)
@@ -527,10 +560,14 @@ class Resampler:
             self._settle_run(stream, node)
             return
         else:
+            if stream.lateral:    # what the old model's samples still cover, before they go
+                self._release_ready(ending=node)
             held, node.run = node.run, []
             c.started = False
             close_run(c)
             node.ring_k[:] = [_EMPTY] * len(node.ring_k)
+            if self._sinc and stream.lateral:
+                self._taps_k[stream.message][:] = _EMPTY
             node.k_stored = _EMPTY
             node.missing_before = node.missing_samples()
             node.received, node.k_lo, node.k_hi = 0, _EMPTY, _EMPTY
@@ -620,8 +657,10 @@ class Resampler:
                           node.missing_samples(), node.reordered_samples)
 
     # ------------------------------------------------------------------ grid
-    def _release_ready(self) -> None:
-        """Finalise grid points while every required node has data past them."""
+    def _release_ready(self, ending: NodeState | None = None) -> None:
+        """Finalise grid points while every required node has data past them (up to the
+        interpolator's last tap; for ``ending``, a node whose model is about to restart,
+        up to the next sample: its later samples will never come)."""
         st = self._st
         fs = self.config.fs_hz
         while st.next_j is not None:
@@ -630,8 +669,9 @@ class Resampler:
                 c = node.clock
                 if node.excluded:
                     continue
-                if not node.seen or node.watermark <= math.floor(
-                        c.k_ref + (t - c.offset_s) / c.period_s):
+                ahead = 1 if node is ending else self._ahead
+                if not node.seen or node.watermark < math.floor(
+                        c.k_ref + (t - c.offset_s) / c.period_s) + ahead:
                     return
             self._finalize(st.next_j)
 
@@ -688,12 +728,13 @@ class Resampler:
                 f = 0.0 if f < 0.5 else 1.0
             v0, v1 = node.ring_v[s0], node.ring_v[s1]
             q = _SUSPECT if node.ring_suspect[s0] or node.ring_suspect[s1] else _OK
+            band = self._band_limited(stream.message, k0, f) if self._sinc else None
             for i, col in enumerate(stream.cols):
                 x = v0[i] + f * (v1[i] - v0[i])
                 if x != x:
                     qual[col] = _NA
                 else:
-                    raw[col], qual[col] = x, q
+                    raw[col], qual[col] = x if band is None else float(band[i]), q
         speed = self._speed(t)
         values = np.empty(len(SENSORS_5))
         for col, x in enumerate(raw):
@@ -709,6 +750,16 @@ class Resampler:
             st.counters["speed_missing"] += 1
         st.pending.append(GridSample(t, values, np.array(qual, dtype=np.int8), speed, yaw_lp))
         st.next_j = j + 1
+
+    def _band_limited(self, message: str, k0: int, f: float) -> np.ndarray | None:
+        """The node's values at ``k0 + f`` by the fractional delay, shape (ncols,); None
+        when a tap's sample is absent, suspect or not finite (then linear)."""
+        tk = self._taps_k[message]
+        ks = fracdelay.OFFSETS + k0
+        slots = ks & (len(tk) - 1)
+        if not (tk[slots] == ks).all():
+            return None
+        return fracdelay.taps(f) @ self._taps_v[message][slots]
 
     def _speed(self, t: float) -> float:
         """Speed at t: interpolated between VEH samples, else held up to the timeout."""

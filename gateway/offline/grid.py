@@ -4,11 +4,15 @@ The rule, for a recording's times ``t`` (s) and each signal (:func:`grid_period_
 :func:`interpolate`):
 
 - the period is ``median(diff(t))``; times must increase and the rate be 1 Hz to 100 kHz;
-- a value at grid time ``t_g`` is linear between its two neighbouring *valid*
-  (finite) recorded values; it is **missing** (NaN) when those neighbours are more
-  than ``GAP_PERIODS`` = 1.5 periods apart (a gap or a dropout) or ``t_g`` lies
-  outside the valid values; ``bridge=True`` fills it linearly instead (speed, which
-  varies slowly, is always bridged).
+- a value at grid time ``t_g`` lies at fraction f between its two neighbouring *valid*
+  (finite) recorded values; it is the band-limited fractional delay of the 32 valid
+  values around it (:mod:`gateway.frontend.fracdelay`, the live resampler's
+  interpolator: it does not smooth the signal or colour the noise, so uneven times do
+  not move the estimate) where those 32 have no gap, else linear between the two; it is
+  **missing** (NaN) when the two neighbours are more than ``GAP_PERIODS`` = 1.5
+  periods apart (a gap or a dropout) or ``t_g`` lies outside the valid values;
+  ``bridge=True`` fills it linearly instead (speed, which varies slowly, is always
+  bridged, never band-limited).
 
 What each tool does with a missing point is where they really differ, and only there:
 
@@ -42,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gateway.errors import InputError
+from gateway.frontend import fracdelay
 from gateway.offline.interchange import Recording
 from gateway.records import Estimate, Sample
 
@@ -98,9 +103,28 @@ def interpolate(t_grid: np.ndarray, t: np.ndarray, x: np.ndarray, period_s: floa
     prv = np.clip(np.searchsorted(tv, t_grid, side="right") - 1, 0, len(tv) - 1)
     exact = tv[nxt] == t_grid
     span = tv[nxt] - tv[prv]
+    _band_limited(out, t_grid, tv, xv, prv, period_s)
     bad = ((span > GAP_PERIODS * period_s) & ~exact) | (t_grid < tv[0]) | (t_grid > tv[-1])
     out[bad] = np.nan
     return out
+
+
+def _band_limited(out: np.ndarray, t_grid: np.ndarray, tv: np.ndarray, xv: np.ndarray,
+                  prv: np.ndarray, period_s: float, chunk: int = 100_000) -> None:
+    """Replace ``out`` (K,) in place by the fractional delay of valid values ``xv`` (V,)
+    at ``tv`` (V,) wherever the taps around grid time ``t_grid`` (K,) have no gap; ``prv``
+    (K,) the valid value at or before each grid time."""
+    first = prv + fracdelay.OFFSETS[0]
+    last = prv + fracdelay.OFFSETS[-1]
+    ok = np.flatnonzero((first >= 0) & (last < len(tv)) & (t_grid >= tv[0]))
+    gaps = np.concatenate(([0], np.cumsum(np.diff(tv) > GAP_PERIODS * period_s)))   # (V,)
+    ok = ok[gaps[last[ok]] == gaps[first[ok]]]
+    for lo in range(0, len(ok), chunk):
+        j = ok[lo:lo + chunk]
+        k0 = prv[j]
+        f = (t_grid[j] - tv[k0]) / (tv[k0 + 1] - tv[k0])
+        taps = fracdelay.taps_many(f)                           # (n, 2H)
+        out[j] = (taps * xv[k0[:, None] + fracdelay.OFFSETS[None, :]]).sum(axis=1)
 
 
 def to_grid(rec: Recording, sensors: tuple[str, ...], default_speed_mps: float) -> GridData:
