@@ -127,6 +127,9 @@ def _print_ingest(rep: Any, store: str) -> None:
           f"directories ({sum(s.estimates for s in rep.states)} estimates, "
           f"{sum(s.alerts for s in rep.states)} alert events new), skipped "
           f"{len(rep.skipped)} already in the store -> {store}")
+    if rep.replaced:
+        print(f"made the samples of {len(rep.replaced)} of those runs again: another front "
+              f"end had made them")
 
 
 @contextlib.contextmanager
@@ -159,6 +162,10 @@ def _replay(store: Any, cfg: Config, args: argparse.Namespace, client: Any = Non
     print(f"replayed {rep.ran} runs on {rep.workers} Dask workers in {rep.wall_s:.1f} s "
           f"({rep.runs_per_s:.3f} runs/s); {rep.done_before} of {rep.runs} already done; "
           f"estimator {rep.version}")
+    if rep.stale:
+        print(f"{rep.stale} runs not replayed: their samples were made by another front end "
+              f"(ingest their logs again with this configuration: railgw fleet ingest "
+              f"{store.root} LOGS)", file=sys.stderr)
     return rep
 
 

@@ -37,7 +37,7 @@ import pyarrow as pa
 
 from gateway.config import Config
 from gateway.errors import InputError
-from gateway.fleet.runs import PARAMS, estimate_run, estimator_version
+from gateway.fleet.runs import PARAMS, estimate_run, estimator_version, frontend_version
 from gateway.fleet.store import RunInfo, Store, write_atomic_table
 
 log = logging.getLogger(__name__)
@@ -116,7 +116,9 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
 @dataclass(frozen=True)
 class ReplayReport:
     """One fleet replay: ``runs`` in the store with data, ``done_before`` found finished,
-    ``ran`` computed now (``reused`` of them found their result already written)."""
+    ``ran`` computed now (``reused`` of them found their result already written);
+    ``stale`` runs not replayed because another front end made their samples (ingest
+    their logs again)."""
 
     version: str
     runs: int
@@ -125,6 +127,7 @@ class ReplayReport:
     reused: int
     wall_s: float
     workers: int
+    stale: int = 0
 
     @property
     def runs_per_s(self) -> float:
@@ -133,12 +136,15 @@ class ReplayReport:
 
 def replay_store(store: Store, cfg: Config, client: Any, *, attempts_dir: str | None = None,
                  progress: bool = True, retries: int = TASK_RETRIES) -> ReplayReport:
-    """Replay every stored run without a result for this estimator version."""
+    """Replay every stored run without a result for this estimator version whose samples
+    this configuration's front end made (the others are counted as ``stale``)."""
     from distributed import as_completed
 
     version = estimator_version(cfg)
+    frontend = frontend_version(cfg)
     root = store.root.resolve()
-    runs = [r for r in store.runs() if r.grid_points > 0]
+    stored = [r for r in store.runs() if r.grid_points > 0]
+    runs = [r for r in stored if r.frontend == frontend]
     todo = [r for r in runs if not result_path(root, version, r).exists()]
     workers = len(client.scheduler_info().get("workers", {}))
     wall0 = time.monotonic()
@@ -164,4 +170,4 @@ def replay_store(store: Store, cfg: Config, client: Any, *, attempts_dir: str | 
         if bar is not None:
             bar.close()
     return ReplayReport(version, len(runs), len(runs) - len(todo), len(todo), reused,
-                        time.monotonic() - wall0, workers)
+                        time.monotonic() - wall0, workers, len(stored) - len(runs))

@@ -37,7 +37,7 @@ ON_TIME_FRAMES = 1000
 """Frames between ``on_time`` calls, as ``gateway.offline.replay.replay``."""
 
 __all__ = ["NOMINAL", "PARAMS", "RunEstimates", "RunSamples", "Theta", "estimate_run",
-           "estimator_version", "log_samples", "thresholds", "unit_alerts"]
+           "estimator_version", "frontend_version", "log_samples", "thresholds", "unit_alerts"]
 
 
 @dataclass(frozen=True)
@@ -73,26 +73,43 @@ def thresholds() -> dict[str, ParamPolicy]:
 
 
 RESULT_CODE = ("estimator", "model", "alerts", "runtime")
-"""The gateway packages whose code makes a replay result (besides the settings)."""
+"""The gateway packages whose code makes a replay result from stored samples (besides
+the settings; the samples' own front end is in :func:`frontend_version`)."""
+FRONTEND_CODE = ("can", "frontend")
+"""The gateway packages whose code makes a run's grid samples from its log."""
+
+
+def frontend_version(cfg: Config) -> str:
+    """The gateway version plus a hash of the front end's settings (resampler, gating)
+    and of its code (:data:`FRONTEND_CODE`): a run's stored samples carry it, and ingest
+    makes a run's samples again when it differs (an improved front end re-processes the
+    store, as an improved estimator does)."""
+    settings = json.dumps({"resampler": dataclasses.asdict(cfg.resampler),
+                           "gating": dataclasses.asdict(cfg.gating)}, sort_keys=True)
+    h = hashlib.sha256(settings.encode())
+    h.update(code_digest(FRONTEND_CODE).encode())
+    return f"{__version__}-{h.hexdigest()[:10]}"
 
 
 def estimator_version(cfg: Config) -> str:
-    """The gateway version plus a hash of every estimator setting and of the code that
-    makes a result (:data:`RESULT_CODE`): results are keyed by it, so a changed estimator
-    (even within one release) or new settings re-process every run, and old results stay."""
+    """The gateway version plus a hash of every estimator setting, of the front end that
+    made the samples (:func:`frontend_version`) and of the code that makes a result from
+    them (:data:`RESULT_CODE`): results are keyed by it, so a changed estimator or front
+    end (even within one release) or new settings re-process every run, and old results
+    stay. Replay uses only runs whose samples this front end made."""
     settings = json.dumps({"estimator": dataclasses.asdict(cfg.estimator),
-                           "resampler_fs_hz": cfg.resampler.fs_hz}, sort_keys=True)
+                           "frontend": frontend_version(cfg)}, sort_keys=True)
     h = hashlib.sha256(settings.encode())
-    h.update(code_digest().encode())
+    h.update(code_digest(RESULT_CODE).encode())
     return f"{__version__}-{h.hexdigest()[:10]}"
 
 
 @functools.cache
-def code_digest() -> str:
-    """SHA-256 over the sources of :data:`RESULT_CODE` (relative path and bytes)."""
+def code_digest(packages: tuple[str, ...]) -> str:
+    """SHA-256 over the sources of the gateway's ``packages`` (relative path and bytes)."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
-    for f in sorted(p for pkg in RESULT_CODE for p in (root / pkg).rglob("*.py")):
+    for f in sorted(p for pkg in packages for p in (root / pkg).rglob("*.py")):
         h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()
 

@@ -9,7 +9,10 @@ dataset)::
     state-manifest.jsonl, onboard/...     copied state directories (gateway.fleet.onboard)
 
 A run's id is the first 16 hex digits of the SHA-256 of the log's bytes: a file seen
-before (under any name) is skipped, so re-ingesting counts nothing twice. Every file
+before (under any name) is skipped, so re-ingesting counts nothing twice, unless its
+samples were made by another front end (``frontend``, :func:`gateway.fleet.runs.frontend_version`):
+then its samples are made again and replace the old ones (the manifest's last line for
+a file wins). Every file
 is written to a temporary name and renamed into place; the manifest line is appended
 (and fsynced) after the rename, and a crash in between only means the same file is
 rewritten identically next time. One ingest at a time per store (a lock file).
@@ -38,7 +41,7 @@ import pyarrow.parquet as pq
 from gateway.config import Config
 from gateway.errors import InputError
 from gateway.fleet.onboard import STATE_MANIFEST, StateInfo, new_parts, state_infos
-from gateway.fleet.runs import RunSamples, log_samples
+from gateway.fleet.runs import RunSamples, frontend_version, log_samples
 from gateway.sinks.store.snapshot import is_state_dir, read_snapshot
 
 log = logging.getLogger(__name__)
@@ -68,6 +71,9 @@ class RunInfo:
     grid_points: int
     frames: int
     sensors: tuple[str, ...]
+    frontend: str = ""
+    """The front end that made the samples (:func:`gateway.fleet.runs.frontend_version`);
+    empty for a run ingested before front ends were versioned."""
 
     @property
     def samples_path(self) -> str:
@@ -79,11 +85,13 @@ class RunInfo:
 @dataclass(frozen=True)
 class IngestReport:
     """What one ingest did: runs added, state-directory copies added, files and copies
-    skipped as already stored (by hash)."""
+    skipped as already stored (by hash); ``replaced`` the run ids among ``added`` whose
+    older samples, made by another front end, were replaced."""
 
     added: tuple[RunInfo, ...]
     skipped: tuple[str, ...]
     states: tuple[StateInfo, ...] = ()
+    replaced: tuple[str, ...] = ()
 
 
 def check_name(kind: str, text: str) -> str:
@@ -126,19 +134,23 @@ class Store:
 
     # ---------------------------------------------------------------- manifest
     def runs(self) -> list[RunInfo]:
-        """Every ingested run, in ingest order (a torn last line is ignored)."""
+        """Every ingested run, once, in first-ingest order; of several lines for one file
+        (samples made again by a newer front end) the last wins. A torn last line is
+        ignored."""
         path = self.root / MANIFEST
         if not path.is_file():
             return []
-        out = []
+        out: dict[str, RunInfo] = {}
         for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
             try:
                 d = json.loads(line)
                 d["sensors"] = tuple(d["sensors"])
-                out.append(RunInfo(**d))
+                info = RunInfo(**d)
             except (ValueError, TypeError, KeyError) as err:
                 log.warning("%s:%d: unreadable manifest line skipped (%s)", path, n, err)
-        return out
+                continue
+            out[info.sha256] = info
+        return list(out.values())
 
     def _append(self, info: RunInfo | StateInfo) -> None:
         name = MANIFEST if isinstance(info, RunInfo) else STATE_MANIFEST
@@ -185,22 +197,34 @@ class Store:
                 self._append(sinfo)
                 known_states.add(snap.sha256)
                 new_states.append(sinfo)
-            known = {r.sha256 for r in self.runs()}
+            known = {r.sha256: r for r in self.runs()}
+            frontend = frontend_version(cfg)
             todo: list[tuple[str, str, str, str]] = []
+            queued: set[str] = set()
             for path, veh, bog in files:
                 sha = file_sha256(path)
-                if sha in known:
+                old = known.get(sha)
+                if sha in queued or old is not None and old.frontend == frontend:
                     skipped.append(str(path))
-                else:
-                    known.add(sha)
-                    todo.append((str(path.resolve()), sha, veh, bog))
+                    continue
+                if old is not None:     # samples of another front end: make them again
+                    veh, bog = old.vehicle, old.bogie
+                queued.add(sha)
+                todo.append((str(path.resolve()), sha, veh, bog))
             root = str(self.root.resolve())
+            replaced: list[str] = []
             for info in _ingest_all(root, todo, cfg, client):
                 self._append(info)
                 added.append(info)
+                old = known.get(info.sha256)
+                if old is not None:
+                    replaced.append(info.run_id)
+                    if old.samples_path != info.samples_path:   # another day: not overwritten
+                        with contextlib.suppress(FileNotFoundError):
+                            (self.root / old.samples_path).unlink()
                 if progress is not None:
                     progress(len(added), len(todo))
-        return IngestReport(tuple(added), tuple(skipped), tuple(new_states))
+        return IngestReport(tuple(added), tuple(skipped), tuple(new_states), tuple(replaced))
 
     # -------------------------------------------------------------------- read
     def samples(self, info: RunInfo) -> RunSamples:
@@ -244,7 +268,8 @@ def ingest_log(root: str, path: str, sha: str, vehicle: str, bogie: str,
     info = RunInfo(run_id=sha[:16], sha256=sha, source=path, vehicle=vehicle,
                    bogie=bogie, day=day, t0_s=t0,
                    t1_s=float(s.t_s[-1]) if len(s.t_s) else float("nan"),
-                   grid_points=len(s.t_s), frames=s.frames, sensors=s.sensors)
+                   grid_points=len(s.t_s), frames=s.frames, sensors=s.sensors,
+                   frontend=frontend_version(cfg))
     if len(s.t_s):
         write_atomic_table(samples_table(s, info), Path(root) / info.samples_path)
     else:
