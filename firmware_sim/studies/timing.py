@@ -1,0 +1,173 @@
+"""Node-timing study: does a node's clock phase move the estimate? (a measuring tool)
+
+The same simulated run (same truth, same sensor noise) is sent with the sensor nodes'
+clocks set four ways, written as a CAN log and replayed through the whole gateway
+(``gateway.offline.replay``: decode, validate, resample, gate, estimator worker) with a
+given ``[resampler] interpolation``:
+
+- ``aligned``: every lateral node samples on the grid of the receive clock (phase one
+  period minus the simulator's 150 us minimum bus latency, no drift);
+- ``half``: every lateral node half-way between grid points (no drift), the worst
+  case for linear interpolation;
+- ``phase``: each lateral node at its own random phase in [0, 1 ms), no drift;
+- ``drift``: each at its own random phase and drift (+-50 ppm): the phase then sweeps
+  through the grid during the run. The sensor noise is drawn per node per block, so
+  a drift changes how many samples each block draws: another noise realisation
+  (compare it statistically, not pair by pair).
+
+Without drift every case draws the same noise for the same sample, so ``half`` and
+``phase`` against ``aligned`` of the same seed is the same data at another node timing.
+Rows (JSON lines on stdout): the final estimate's error against the truth, its z and
+stated sigma per parameter. ``summary FILE...`` prints the table of docs/resampler.md
+("Node timing"): mean ± standard error over seeds, truth within 2 sigma, and the paired
+difference to ``aligned``. Data seed = filter seed = the seed; the clocks' random
+draws from 10000 + seed. Not used by the service; a measuring tool.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from firmware_sim.nodes import NodeClock
+from firmware_sim.output import write_log
+from firmware_sim.scenarios import get_scenario
+from firmware_sim.simulation import SimConfig, Simulation
+from gateway.config import INTERPOLATIONS, Config
+from gateway.model.vehicle import PARAM_NAMES
+from gateway.offline.replay import replay
+
+CASES = ("aligned", "half", "phase", "drift")
+MIN_LATENCY_S = 150e-6
+"""The simulator's minimum sample-to-bus latency (:func:`firmware_sim.nodes.default_latency`):
+the receive clock sees a node this much after it sampled."""
+
+
+def set_clocks(sim: Simulation, case: str, rng: np.random.Generator) -> None:
+    """Put the lateral nodes' clocks of ``sim`` into ``case`` (VEH keeps its own)."""
+    for node in sim.nodes:
+        if node.node == "VEH":
+            continue
+        period_s = node.period_s
+        if case == "aligned":
+            clock = NodeClock(0.0, period_s - MIN_LATENCY_S)
+        elif case == "half":
+            clock = NodeClock(0.0, period_s / 2 - MIN_LATENCY_S)
+        elif case == "phase":
+            clock = NodeClock(0.0, float(rng.uniform(0, period_s)))
+        elif case == "drift":
+            clock = NodeClock(float(rng.uniform(-50, 50)), float(rng.uniform(0, period_s)))
+        else:
+            raise ValueError(f"expected a case from {CASES}, got {case!r}")
+        sim.clocks[node.node] = clock
+
+
+def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: float,
+             particles: int, scenario: str, workdir: Path) -> dict[str, Any]:
+    """One replay: the final estimate against the truth."""
+    sim = Simulation(get_scenario(scenario), SimConfig(duration_s=seconds, seed=seed))
+    truth = sim.scenario.theta(np.array([0.0]), seconds)[0]
+    set_clocks(sim, case, np.random.default_rng(10_000 + seed))
+    log_path = workdir / f"{scenario}-{seed}-{case}.log"
+    if not log_path.exists():
+        write_log(list(sim.messages()), log_path)
+    base = Config()
+    cfg = dataclasses.replace(
+        base, resampler=dataclasses.replace(base.resampler, interpolation=interpolation),
+        estimator=dataclasses.replace(base.estimator, particles=particles, sensors=sensors,
+                                      seed=seed))
+    wall0 = time.monotonic()
+    est = replay(log_path, cfg).estimates[-1]
+    return {"seed": seed, "case": case, "interpolation": interpolation, "sensors": sensors,
+            "particles": particles, "scenario": scenario, "t_s": est.t_s,
+            "rel": [est.mean[i] / truth[i] - 1 for i in range(3)],
+            "z": [(est.mean[i] - truth[i]) / est.std[i] for i in range(3)],
+            "sigma_rel": [est.std[i] / est.mean[i] for i in range(3)],
+            "wall_s": round(time.monotonic() - wall0, 2)}
+
+
+def summary(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown tables: per (sensors, interpolation, case) the mean error ± s.e. and
+    truth within 2 sigma; then each case minus ``aligned`` of the same seed."""
+    groups: dict[tuple[int, str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        groups[(r["sensors"], r["interpolation"], r["case"])].append(r)
+
+    def cell(x: np.ndarray) -> str:
+        se = x.std(ddof=1) / np.sqrt(len(x)) if len(x) > 1 else float("nan")
+        return f"{x.mean():+.2f} ± {se:.2f}"
+
+    names = " / ".join(PARAM_NAMES)
+    out = [f"| sensors | interpolation | case | runs | error % (mean ± s.e.): {names} "
+           f"| truth within 2σ |", "|---|---|---|---|---|---|"]
+    for key in sorted(groups):
+        g = groups[key]
+        rel = 100 * np.array([r["rel"] for r in g])
+        inside = np.mean(np.abs(np.array([r["z"] for r in g])) < 2, axis=0)
+        out.append(f"| {key[0]} | {key[1]} | {key[2]} | {len(g)} | "
+                   + " / ".join(cell(rel[:, i]) for i in range(3)) + " | "
+                   + " / ".join(f"{100 * x:.0f} %" for x in inside) + " |")
+    ref = {(r["sensors"], r["interpolation"], r["seed"]): r for r in rows
+           if r["case"] == "aligned"}
+    out += ["", f"| sensors | interpolation | case − aligned, same seed | pairs "
+                f"| difference % (mean ± s.e.): {names} | largest |", "|---|---|---|---|---|---|"]
+    for key in sorted(groups):
+        if key[2] == "aligned":
+            continue
+        pairs = [(r, ref[(r["sensors"], r["interpolation"], r["seed"])]) for r in groups[key]
+                 if (r["sensors"], r["interpolation"], r["seed"]) in ref]
+        if not pairs:
+            continue
+        d = 100 * np.array([np.subtract(a["rel"], b["rel"]) for a, b in pairs])
+        out.append(f"| {key[0]} | {key[1]} | {key[2]} | {len(d)} | "
+                   + " / ".join(cell(d[:, i]) for i in range(3)) + " | "
+                   + " / ".join(f"{np.abs(d[:, i]).max():.2f}" for i in range(3)) + " |")
+    return "\n".join(out)
+
+
+def _seeds(text: str) -> list[int]:
+    lo, _, hi = text.partition("-")
+    return list(range(int(lo), int(hi or lo) + 1))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The command line: run the cases (JSON lines), or ``summary`` of such lines."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["summary"]:
+        rows = [json.loads(line) for f in argv[1:] for line in Path(f).read_text().splitlines()
+                if line.strip()]
+        print(summary(rows))
+        return 0
+    p = argparse.ArgumentParser(prog="python -m firmware_sim.studies.timing",
+                                description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=_seeds, default=_seeds("1-10"), help="e.g. 1-20")
+    p.add_argument("--cases", default=",".join(CASES))
+    p.add_argument("--interpolation", default="sinc",
+                   help=f"comma-separated, from {list(INTERPOLATIONS)}")
+    p.add_argument("--sensors", type=int, choices=(3, 5), default=3)
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--particles", type=int, default=1000)
+    p.add_argument("--scenario", default="nominal")
+    args = p.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="railgw-timing-") as tmp:
+        for seed in args.seeds:
+            for case in args.cases.split(","):
+                for interpolation in args.interpolation.split(","):
+                    row = run_case(seed, case, interpolation, args.sensors, args.seconds,
+                                   args.particles, args.scenario, Path(tmp))
+                    print(json.dumps(row), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
