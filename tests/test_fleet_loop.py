@@ -206,3 +206,14 @@ def test_report_shows_an_ingested_state_directory(fleet: dict[str, Path],
     replay = [a for a in _csv(tmp_path / "report" / "alerts.csv") if a["source"] == "replay"]
     assert replay == [a for a in _csv(fleet["report"] / "alerts.csv")
                       if a["source"] == "replay"]
+
+
+def test_the_truth_study_matches_every_run_to_its_truth(fleet: dict[str, Path]) -> None:
+    # firmware_sim.studies.fleet_truth reads a demo directory (sim/ and store/), as this
+    # fixture lays it out: every replayed run matched to its own true θ
+    from firmware_sim.studies.fleet_truth import errors
+
+    rel, z = errors(fleet["root"], estimator_version(CFG))
+    assert rel.shape == z.shape == (SPEC.vehicles * SPEC.days, len(PARAMS))
+    # a run matched to another run's truth would be off by the failed damper's 75 %
+    assert np.all(np.median(np.abs(rel), axis=0) < 0.1), np.median(np.abs(rel), axis=0)

@@ -5,7 +5,7 @@ Putting its samples on the grid is a fractional delay: the value at ``k0 + f`` (
 index ``k0``, fraction ``0 <= f < 1``) from the samples around it. Linear interpolation
 is a two-tap fractional delay that low-passes the signal and scales the sensor noise by
 ``sqrt((1 - f)**2 + f**2)`` (0.71 at f = 1/2), correlated from one grid point to the
-next: the estimator's white-noise model does not hold, and λ came out 2-5 % low with
+next: the estimator's white-noise model does not hold, and λ came out 3-7 % low with
 nodes between grid points (docs/resampler.md "Node timing"). A windowed-sinc fractional
 delay is close to all-pass: it delays the signal without smoothing it and leaves white
 noise white with its variance, below the window's transition band.
