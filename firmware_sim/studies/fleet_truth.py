@@ -18,19 +18,24 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 
 from gateway.config import Config, load_config, with_overrides
-from gateway.fleet.replay import result_path
-from gateway.fleet.runs import PARAMS, estimator_version
-from gateway.fleet.store import Store
+from gateway.model.vehicle import PARAM_NAMES
 
 FAR_OFF_REL = 0.25
+PARAMS = PARAM_NAMES
+"""The estimator's parameters, as the fleet store names its columns."""
 
 
 def errors(demo: Path, version: str) -> tuple[np.ndarray, np.ndarray]:
     """Relative error and z of every run's final estimate under estimator ``version``:
-    (n, 3) each."""
+    (n, 3) each. Needs the ``fleet`` extra (imported here, so that the plain install
+    imports this module)."""
+    import pyarrow.parquet as pq
+
+    from gateway.fleet.replay import result_path
+    from gateway.fleet.store import Store
+
     with open(demo / "sim" / "truth.csv", newline="") as f:
         truth = {Path(r["file"]).name: r for r in csv.DictReader(f)}
     store = Store(demo / "store")
@@ -60,6 +65,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--estimator", metavar="VERSION",
                    help="the results of this estimator version (default: the configuration's)")
     args = p.parse_args(argv)
+    from gateway.fleet.runs import estimator_version
+
     cfg = load_config(args.config) if args.config else Config()
     if args.particles:
         cfg = with_overrides(cfg, {"estimator.particles": args.particles})
