@@ -126,9 +126,14 @@ class FramePacker:
 Jitter = Callable[[np.random.Generator, int], np.ndarray]
 
 
+MIN_LATENCY_S = 150e-6
+"""A node's minimum sample-to-bus latency, s."""
+
+
 def default_latency(rng: np.random.Generator, n: int) -> np.ndarray:
-    """Sample-to-bus latency: 150 us plus exponential jitter (mean 100 us), seconds."""
-    return 150e-6 + rng.exponential(100e-6, n)
+    """Sample-to-bus latency: :data:`MIN_LATENCY_S` plus exponential jitter (mean 100 us),
+    seconds."""
+    return MIN_LATENCY_S + rng.exponential(100e-6, n)
 
 
 @dataclass

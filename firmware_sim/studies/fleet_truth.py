@@ -23,8 +23,6 @@ from gateway.config import Config, load_config, with_overrides
 from gateway.model.vehicle import PARAM_NAMES
 
 FAR_OFF_REL = 0.25
-PARAMS = PARAM_NAMES
-"""The estimator's parameters, as the fleet store names its columns."""
 
 
 def errors(demo: Path, version: str) -> tuple[np.ndarray, np.ndarray]:
@@ -48,12 +46,12 @@ def errors(demo: Path, version: str) -> tuple[np.ndarray, np.ndarray]:
         if table.num_rows == 0:
             continue
         row = truth[Path(info.source).name]
-        mean = np.array([table.column(f"{p}_mean").to_numpy()[-1] for p in PARAMS])
-        std = np.array([table.column(f"{p}_std").to_numpy()[-1] for p in PARAMS])
-        true = np.array([float(row[p]) for p in PARAMS])
+        mean = np.array([table.column(f"{p}_mean").to_numpy()[-1] for p in PARAM_NAMES])
+        std = np.array([table.column(f"{p}_std").to_numpy()[-1] for p in PARAM_NAMES])
+        true = np.array([float(row[p]) for p in PARAM_NAMES])
         rel.append(mean / true - 1)
         z.append((mean - true) / std)
-    return np.array(rel).reshape(-1, len(PARAMS)), np.array(z).reshape(-1, len(PARAMS))
+    return np.array(rel).reshape(-1, len(PARAM_NAMES)), np.array(z).reshape(-1, len(PARAM_NAMES))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -79,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{len(rel)} (versions there: {found}; --estimator picks one)", file=sys.stderr)
         return 2
     print(f"runs {len(rel)} (estimator {version})")
-    for j, name in enumerate(PARAMS):
+    for j, name in enumerate(PARAM_NAMES):
         r = 100 * rel[:, j]
         print(f"{name}: median {np.median(r):+.2f} %, mean {r.mean():+.2f} ± "
               f"{r.std(ddof=1) / np.sqrt(len(r)):.2f} %, median z {np.median(z[:, j]):+.2f}, "

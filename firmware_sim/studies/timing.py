@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.nodes import NodeClock
+from firmware_sim.nodes import MIN_LATENCY_S, NodeClock
 from firmware_sim.output import write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
@@ -48,9 +48,6 @@ from gateway.model.vehicle import PARAM_NAMES
 from gateway.offline.replay import replay
 
 CASES = ("aligned", "half", "phase", "drift")
-MIN_LATENCY_S = 150e-6
-"""The simulator's minimum sample-to-bus latency (:func:`firmware_sim.nodes.default_latency`):
-the receive clock sees a node this much after it sampled."""
 
 
 def set_clocks(sim: Simulation, case: str, rng: np.random.Generator) -> None:
