@@ -11,26 +11,35 @@ from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 
 
-def _replay_alerts(cli, tmp_path, scenario: str, duration_s: float, particles: int) -> dict:
+def _replay_alerts(cli, tmp_path, scenario: str, duration_s: float,
+                   particles: int | None) -> dict:
+    """Simulate ``scenario`` to a CAN log and replay it; ``particles`` None: the service's
+    default (m = 1000, fast mode, fault bank)."""
     log = tmp_path / f"{scenario}.log"
     write_log(Simulation(get_scenario(scenario), SimConfig(duration_s=duration_s, seed=21))
               .messages(), log)
+    extra = [] if particles is None else ["--particles", str(particles)]
     proc = cli("gateway", "replay", str(log), "--report", str(tmp_path / "r.json"),
-               "--particles", str(particles), "--no-progress", timeout=1500)
+               "--no-progress", *extra, timeout=1500)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads((tmp_path / "r.json").read_text())
 
 
 @pytest.mark.slow
-def test_failed_lateral_damper_raises_an_alarm_within_15_s(cli, tmp_path):
-    report = _replay_alerts(cli, tmp_path, "lateral-failing", 50.0, 500)
+def test_failed_lateral_damper_alerts_within_5_s_and_alarms_within_10_s(cli, tmp_path):
+    """Csy 40 -> 10 kNs/m at half-time, through the whole replay path at the service's
+    defaults: the first alert on Csy within 5 s of the step and the ALARM within 10 s
+    (issue 15's worst-case targets; before the fault bank: an ALARM within 15 s), nothing
+    before the fault, nothing on another parameter."""
+    report = _replay_alerts(cli, tmp_path, "lateral-failing", 50.0, None)
     t_fail = 25.0                                     # the step is at half-time
-    alarms = [a for a in report["alerts"] if a["parameter"] == "csy_ns_per_m"
-              and a["severity"] == "alarm" and a["state"] == "raised"]
-    assert alarms, report["alerts"]
     t0 = report["history"][0]["t_s"]                  # data time of the first grid point
-    assert 0.0 < alarms[0]["t_s"] - t0 - t_fail <= 15.0, alarms[0]
+    raised = [a for a in report["alerts"] if a["state"] == "raised"]
+    assert raised and all(a["parameter"] == "csy_ns_per_m" for a in raised), raised
     assert all(a["t_s"] - t0 > t_fail for a in report["alerts"])   # nothing before the fault
+    assert raised[0]["t_s"] - t0 - t_fail <= 5.0, raised[0]
+    alarms = [a for a in raised if a["severity"] == "alarm"]
+    assert alarms and alarms[0]["t_s"] - t0 - t_fail <= 10.0, alarms
     final = report["estimates"]["csy_ns_per_m"]["mean"]
     assert abs(final / 10e3 - 1) < 0.15
 

@@ -23,6 +23,8 @@ from gateway.records import AlertState, Estimate, Severity
 
 NOM = THETA_NOMINAL.as_array()
 FS_HZ = 10.0
+HOLD_ONLY = PolicyConfig(sure_sigmas=1e9)
+"""The noise hold alone: the tests below pin it; the sure path has its own tests."""
 
 
 def est(t_s: float, csy: float = 1.0, csay: float = 1.0, con: float = 1.0,
@@ -58,7 +60,7 @@ def test_codes_table_and_round_trip():
 
 
 def test_csy_drop_warning_then_alarm_then_clear():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     assert run(p, 0, 10) == []
     ev = run(p, 10, 20, csy=18e3 / 40e3)       # 0.45: below advisory and warning
     assert brief(ev) == [(13.0, "csy_ns_per_m", "WARNING", "RAISED")]
@@ -73,7 +75,7 @@ def test_csy_drop_warning_then_alarm_then_clear():
 
 
 def test_deescalation_clears_then_raises_lower_severity():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     run(p, 0, 10, csy=0.2)
     ev = run(p, 10, 30, csy=0.5)               # 0.5: inside the warning band
     assert brief(ev) == [(15.0, "csy_ns_per_m", "ALARM", "CLEARED"),
@@ -86,7 +88,7 @@ def test_deescalation_clears_then_raises_lower_severity():
 
 
 def test_minimum_duration_must_hold_continuously():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     for t0 in np.arange(0.0, 60.0, 3.0):       # 2.9 s low, 0.1 s nominal, repeated
         assert run(p, t0, t0 + 2.9, csy=0.45) == []
         assert run(p, t0 + 2.9, t0 + 3.0) == []
@@ -96,7 +98,7 @@ def test_hysteresis_no_flapping_around_threshold():
     """10 min hovering at the warning threshold (AR(1) wander, sd 1.5 %): raised once
     (perhaps via ADVISORY), never cleared and raised again."""
     rng = np.random.default_rng(1)
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     events = []
     dev = 0.0
     for k in range(6000):
@@ -108,7 +110,7 @@ def test_hysteresis_no_flapping_around_threshold():
 
 
 def test_confidence_gate_blocks_and_resets_hold():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     assert run(p, 0, 60, csy=0.45, std_rel=0.10) == []
     assert run(p, 60, 62, csy=0.45) == []
     assert run(p, 62, 62.5, csy=0.45, std_rel=0.10) == []   # gate closes mid-hold
@@ -118,7 +120,7 @@ def test_confidence_gate_blocks_and_resets_hold():
 
 def test_gate_uses_nominal_for_low_estimates():
     """A failed damper at 8 kNs/m with sigma 0.8 kNs/m (10 % of itself, 2 % of nominal)."""
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     ev = []
     for k in range(100):
         e = est(k / FS_HZ, csy=0.2)
@@ -127,7 +129,7 @@ def test_gate_uses_nominal_for_low_estimates():
 
 
 def test_nan_and_gaps_break_continuity():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     assert run(p, 0, 2, csy=0.45) == []
     assert run(p, 5, 7, csy=0.45) == []        # 3 s gap: the hold restarts at 5 s
     nan = Estimate(7.0, (math.nan, *est(7).mean[1:]), est(7).std, 1.0)
@@ -138,7 +140,7 @@ def test_nan_and_gaps_break_continuity():
 
 
 def test_conicity_high_side():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     ev = run(p, 0, 10, con=0.32 / 0.15)
     assert brief(ev) == [(3.0, "conicity", "WARNING", "RAISED")] and ev[0].code == 0x28
     assert brief(run(p, 10, 20, con=0.41 / 0.15)) == [(13.0, "conicity", "ALARM", "RAISED")]
@@ -148,7 +150,7 @@ def test_nominal_ten_minutes_with_correlated_noise_raises_nothing():
     """600 s at 10 Hz; means wander (AR(1), 3 % sd dampers, 8 % conicity plus a +40 % Ar
     bias on conicity), std/theta 2 %, and 20 s of unconverged start (std 30 %)."""
     rng = np.random.default_rng(7)
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     dev = np.zeros(3)
     sd = np.array([0.03, 0.03, 0.08])
     phi = 0.98
@@ -163,7 +165,7 @@ def test_nominal_ten_minutes_with_correlated_noise_raises_nothing():
 
 def test_iid_nominal_noise_raises_nothing():
     rng = np.random.default_rng(3)
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     events = []
     for k in range(6000):
         r = 1 + 0.02 * rng.standard_normal(3)
@@ -174,7 +176,7 @@ def test_iid_nominal_noise_raises_nothing():
 def test_failed_damper_alarmed_within_15_s_of_step():
     """An estimate converging from 1.0 to 0.25 with a 3 s time constant, unsure (std 15 %)
     for the first 4 s after the step: the issue's estimator target (15 % in 10 s)."""
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     run(p, 0, 30)
     ev = []
     for k in range(300, 600):
@@ -186,7 +188,7 @@ def test_failed_damper_alarmed_within_15_s_of_step():
 
 
 def test_lifecycle_ack_escalate_clear():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     (raised,) = run(p, 0, 5, csy=0.7)
     assert raised.severity == Severity.ADVISORY
     ack = p.acknowledge(raised.seq, t_s=5.0)
@@ -215,7 +217,7 @@ def test_lifecycle_ack_escalate_clear():
 
 
 def test_baseline_reset_clears_and_records_time():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     run(p, 0, 5, csay=0.3)
     (cleared,) = p.reset_baseline("csay_ns_per_m", 5.0)
     assert (cleared.state, cleared.severity, cleared.parameter) == (
@@ -226,7 +228,7 @@ def test_baseline_reset_clears_and_records_time():
 
 
 def test_set_threshold_validation_and_effect():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     p.set_threshold("csy_ns_per_m", "warning", 0.6)
     assert p.config.params["csy_ns_per_m"].low_rel == (0.75, 0.6, 0.35)
     assert brief(run(p, 0, 5, csy=0.58)) == [(3.0, "csy_ns_per_m", "WARNING", "RAISED")]
@@ -277,7 +279,7 @@ def test_snapshot_restore_continues_identically():
 
 
 def test_restore_replays_history_newer_than_snapshot():
-    p = AlertPolicy()
+    p = AlertPolicy(HOLD_ONLY)
     snap = p.snapshot()
     history = run(p, 0, 5, csy=0.3)
     history.append(p.acknowledge("csy_ns_per_m", 5.0))
@@ -292,3 +294,28 @@ def test_restore_replays_history_newer_than_snapshot():
     bad = dataclasses.replace(history[0], seq=10, code=0x99)
     with pytest.raises(StateError, match="seq 10: expected an alert code"):
         AlertPolicy.restore(snap, history=[bad])
+
+
+def test_a_sure_condition_raises_after_the_short_hold() -> None:
+    """Csy found at 0.2 of nominal with sigma 2 % of nominal: 7.5 sigma past the ALARM
+    threshold, so the ALARM comes after ``sure_hold_s`` (0.5 s), not the 3 s hold."""
+    p = AlertPolicy()
+    assert run(p, 0, 10) == []
+    ev = run(p, 10, 12, csy=0.2)
+    assert brief(ev) == [(10.5, "csy_ns_per_m", "ALARM", "RAISED")]
+
+
+def test_a_value_near_its_threshold_still_waits_the_noise_hold() -> None:
+    """0.70 against the 0.75 ADVISORY threshold with sigma 2 %: 2.5 sigma, not sure."""
+    p = AlertPolicy()
+    ev = run(p, 0, 10, csy=0.70)
+    assert brief(ev) == [(3.0, "csy_ns_per_m", "ADVISORY", "RAISED")]
+
+
+def test_a_sure_run_broken_by_one_unsure_estimate_starts_again() -> None:
+    """0.2 of nominal, once 0.3 (2.5 sigma past ALARM 0.35: not sure of an ALARM, still
+    sure of a WARNING): the WARNING comes at 0.5 s, the ALARM 0.5 s after the break."""
+    p = AlertPolicy()
+    ev = run(p, 0, 0.3, csy=0.2) + run(p, 0.3, 0.4, csy=0.3) + run(p, 0.4, 1.0, csy=0.2)
+    assert brief(ev) == [(0.5, "csy_ns_per_m", "WARNING", "RAISED"),
+                         (0.9, "csy_ns_per_m", "ALARM", "RAISED")]

@@ -139,19 +139,25 @@ class PolicyConfig:
 
     A condition must hold continuously for ``raise_hold_s`` before it raises and its
     release for ``clear_hold_s`` before it clears; estimates more than ``max_gap_s``
-    apart (or going back in time) break the continuity.
+    apart (or going back in time) break the continuity. A condition that is *sure*, the
+    value past its threshold by at least ``sure_sigmas`` times the estimate's std (both
+    relative to nominal) on every estimate, raises after ``sure_hold_s`` instead: a
+    damper the estimator has found failed need not wait the noise hold.
     """
 
     params: Mapping[str, ParamPolicy] = field(default_factory=default_params)
     raise_hold_s: float = 3.0
     clear_hold_s: float = 5.0
     max_gap_s: float = 2.0
+    sure_hold_s: float = 0.5
+    sure_sigmas: float = 4.0
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.params) - set(PARAM_NAMES))
         if unknown:
             raise ConfigError(f"expected parameters from {PARAM_NAMES}, got {unknown}")
-        for name in ("raise_hold_s", "clear_hold_s", "max_gap_s"):
+        for name in ("raise_hold_s", "clear_hold_s", "max_gap_s", "sure_hold_s",
+                     "sure_sigmas"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f"expected {name} finite and >= 0, got {value!r}")
@@ -172,9 +178,12 @@ class _Track:
     baseline_t_s: float | None = None
     since: dict[str, list[float | None]] = field(
         default_factory=lambda: {s: [None, None, None] for s in SIDES})
+    sure_since: dict[str, list[float | None]] = field(
+        default_factory=lambda: {s: [None, None, None] for s in SIDES})
 
     def reset_timers(self) -> None:
         self.since = {s: [None, None, None] for s in SIDES}
+        self.sure_since = {s: [None, None, None] for s in SIDES}
         self.release_since = None
 
 
@@ -296,16 +305,25 @@ class AlertPolicy:
             tr.reset_timers()                       # gate closed: no judgement at all
             return []
         tr.value_rel = rel
-        sev, side = 0, ""                           # highest level held for raise_hold_s
+        margin = cfg.sure_sigmas * std / pp.nominal     # "sure": this far past, in rel
+        sev, side = 0, ""                           # highest level held long enough
         for s in SIDES:
             for k, threshold in enumerate(pp.levels(s)):
                 if threshold is None or not judge.beyond(s, rel, threshold):
-                    tr.since[s][k] = None
+                    tr.since[s][k] = tr.sure_since[s][k] = None
                     continue
                 start = tr.since[s][k]
                 if start is None:
                     start = tr.since[s][k] = t_s
-                if t_s - start >= cfg.raise_hold_s and k + 1 > sev:
+                sure = tr.sure_since[s][k]
+                if not judge.beyond(s, rel, threshold - margin if s == "low"
+                                    else threshold + margin):
+                    sure = tr.sure_since[s][k] = None
+                elif sure is None:
+                    sure = tr.sure_since[s][k] = t_s
+                held = t_s - start >= cfg.raise_hold_s or (
+                    sure is not None and t_s - sure >= cfg.sure_hold_s)
+                if held and k + 1 > sev:
                     sev, side = k + 1, s
         if sev and (tr.severity == 0 or side != tr.side or sev > tr.severity):
             events = [self._clear(name, tr, t_s, f"superseded on the {side} side")

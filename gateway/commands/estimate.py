@@ -84,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
                                              for k, name in enumerate(sensors)},
                    "predict_only_samples": int((~grid.update).sum()),
                    "resamples": filt.n_resamples, "detections": filt.n_detections,
+                   "fault_detections": filt.n_fault_detections,
+                   "last_fault": filt.last_fault(),
                    "reseeds": filt.n_reseeds, "wall_s": wall_s,
                    "real_time_factor": duration_s / wall_s if wall_s > 0 else None}
     with writing(args.report):

@@ -1,8 +1,8 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (580): the filter's step, its block path, resample-move and checkpoint
-share its state; its kernels (exact, steady), config, particles and monitor are already
-separate modules.
+Over 400 lines (700): the filter's step, its block path, resample-move and checkpoint
+share its state; its kernels (exact, steady), config, particles, monitor and fault bank
+are already separate modules.
 
 Each of m particles carries theta = (Csy, Csay, lambda) [and optionally Ar] and its own
 exact Kalman filter of the vehicle model (16 filter states, :mod:`gateway.model.coordinates`).
@@ -43,6 +43,7 @@ from gateway.errors import EstimatorError
 from gateway.estimator import checkpoint as ckpt
 from gateway.estimator import particles as pt
 from gateway.estimator.batch_expm import DiscreteBatch
+from gateway.estimator.faultbank import Detection, FaultBank, FaultBankConfig
 from gateway.estimator.kalman import from_lanes, kf_step, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
@@ -80,7 +81,7 @@ PRIOR_SAMPLES = 2**13
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
-            "_subset_run", "_at_prior", "_prior_v")
+            "_subset_run", "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at")
 
 
 class RBPF:
@@ -106,6 +107,10 @@ class RBPF:
         self._v_ref = float("nan")
         self._w_of: np.ndarray | None = None
         self._w_cache = np.zeros(m)
+        self._data_since_start = 0
+        self._bank_check_at = 0
+        self._bank = (FaultBank(config.faults, len(config.names), config.fs_hz, config.ar_paper)
+                      if config.faults is not None else None)
         self.reset(rng if rng is not None else np.random.default_rng(config.seed))
 
     # ----------------------------------------------------------------- state
@@ -145,6 +150,9 @@ class RBPF:
         self.since_move = 0
         self.updated_since_move = 0
         self.monitor_state = initial_state()
+        self._data_since_start = 0
+        if self._bank is not None:
+            self._bank.stop()
         self._p0_set = False
         if np.isfinite(self._v_ref):
             self._set_speed(self._v_ref, restart=True)
@@ -164,8 +172,11 @@ class RBPF:
         self._v_ref = float(v_mps)
         self._H = np.ascontiguousarray(self.coords.output(self.sensors, v_mps))
         self._disc = DiscreteBatch(self.coords, v_mps, 1.0 / cfg.fs_hz)
-        if self._fast:
+        if self._fast or self._bank is not None:
             self._null = NullVectors(self.coords.terms(v_mps), cfg.nominal.as_array())
+        if self._bank is not None:
+            self._bank.set_model(self._disc, self._null, self._H, self._r,
+                                 float(track_intensity(1.0, v_mps)))
         if restart or not self._p0_set:
             p0 = self.coords.initial_covariance(v_mps, cfg.ar_paper, 1.0 / cfg.fs_hz)
             self._P0 = np.ascontiguousarray(p0)
@@ -312,12 +323,45 @@ class RBPF:
             w = self._weights()
             ess = pt.effective_sample_size(w)
         est = self._summary(sample.t_s, used, w) if summarize else None
+        self._data_since_start += int(used)
+        fault = self._bank_step(y, use, float(sample.t_s)) if self._bank is not None else None
         alarm = False
-        if self.config.monitor is not None and used:
+        if self.config.monitor is not None and used and fault is None:
             alarm = update(self.config.monitor, self.monitor_state, nis, int(use.sum()))
-        if self.config.resample and (alarm or ess < self.config.ess_threshold * m):
+            if alarm and self._bank is not None and self._bank.busy:
+                alarm = False             # the bank is locating a change: it answers
+                after_reseed(self.monitor_state)
+        if fault is not None:
+            self._resample_move(w, False, fault)
+        elif self.config.resample and (alarm or ess < self.config.ess_threshold * m):
             self._resample_move(w, alarm)
         return est
+
+    def _bank_step(self, y: np.ndarray, use: np.ndarray, t_s: float) -> Detection | None:
+        """The fault bank's view of one sample (after the particles took it): scored
+        when every sensor is used, predicted when none is, idle after a partial one."""
+        bank = self._bank
+        assert bank is not None
+        if use.any() and not use.all():
+            bank.stop()
+            return None
+        if not bank.active:
+            self._maybe_start_bank()
+            return None
+        return bank.scan(y[None], np.array([bool(use.all())]), t_s, 1.0 / self.config.fs_hz)
+
+    def _maybe_start_bank(self) -> None:
+        """Start the fault bank once the cloud has settled (:mod:`faultbank`); checked
+        every 0.1 s of samples."""
+        bank, cfg = self._bank, self.config
+        assert bank is not None and cfg.faults is not None
+        if self.n_steps < self._bank_check_at or \
+                self._data_since_start < cfg.faults.start_after_s * cfg.fs_hz:
+            return
+        self._bank_check_at = self.n_steps + max(1, int(round(0.1 * cfg.fs_hz)))
+        mean, std, xs, _, _ = _posterior(self._weights(), self.z, self._X)
+        if np.all(std[:3] <= cfg.faults.max_rel_std * mean[:3]):
+            bank.start(mean, xs)
 
     def run(self, samples: Iterable[Sample], output_every: int | None = None) -> list[Estimate]:
         """Feed samples; returns an estimate every ``output_every`` samples (and the last).
@@ -387,6 +431,19 @@ class RBPF:
         if k == 0:
             return 0
         Y, full = Y[:k], full[:k]
+        bank = self._bank
+        if bank is not None and not bank.active:
+            self._maybe_start_bank()
+        snap = None
+        if bank is not None and bank.active:
+            snap = bank.snapshot()
+            det = bank.scan(Y, full, samples[0].t_s, 1.0 / cfg.fs_hz)
+            bank.rewind(snap)
+            if det is not None:          # the detecting sample takes the per-sample path
+                k = bank.taken - 1
+                if k == 0:
+                    return 0
+                Y, full = Y[:k], full[:k]
         m = cfg.n_particles
         width = self._nch * LANES
         LL, NIS = np.empty((k, width)), np.empty((k, width))
@@ -410,6 +467,10 @@ class RBPF:
                 kf_steady_block(self._X, self._phi, self._H, Y[:took], full[:took],
                                 self._gains, LL[:took], NIS[:took])
         if took:
+            if snap is not None:
+                assert bank is not None
+                bank.scan(Y[:took], full[:took], samples[0].t_s, 1.0 / cfg.fs_hz)
+            self._data_since_start += int(full[:took].sum())
             self.logw = logw
             self._w_cache, self._w_of = w, logw
             self.t_s = float(samples[took - 1].t_s)
@@ -445,13 +506,24 @@ class RBPF:
         rate[:3] = np.square(cfg.walk_rel_per_sqrt_s)
         return rate * self.updated_since_move / cfg.fs_hz
 
-    def _resample_move(self, w: np.ndarray, alarm: bool) -> None:
+    def _resample_move(self, w: np.ndarray, alarm: bool, fault: Detection | None = None
+                       ) -> None:
+        """Resample and move; an innovation-monitor ``alarm`` also re-draws part of the
+        cloud and restarts every filter; a bank ``fault`` re-draws the changed parameter
+        of every particle over the detected range, and every particle takes the winning
+        hypothesis filter's state (the vehicle's state does not jump with a parameter)."""
         cfg = self.config
         floor = self._floor_log()
         anc = pt.systematic(w, float(self.rng.random()))
         znew = pt.liu_west_move(self.rng, self.z, w, anc, delta=cfg.delta,
                                 steps=self.since_move, floor_log=floor,
                                 walk_var_log=self._walk_var_log())
+        if fault is not None:
+            assert self._bank is not None
+            f_lo, f_hi = self._bank.redraw_range(fault)
+            znew[:, fault.parameter] = pt.draw_log_uniform(
+                self.rng, np.array([f_lo]), np.array([f_hi]), cfg.n_particles)[:, 0]
+            after_reseed(self.monitor_state)
         if alarm:
             self.n_detections += 1
             k = int(round(cfg.reseed_fraction * cfg.n_particles))
@@ -460,7 +532,10 @@ class RBPF:
             after_reseed(self.monitor_state)
         lo, hi = cfg.box(cfg.support_lo, cfg.support_hi)
         self.z = np.clip(znew, np.log(lo), np.log(hi))
-        self._X = to_lanes(from_lanes(self._X, cfg.n_particles, (NZ,))[anc])
+        if fault is not None:
+            self._X = to_lanes(np.repeat(fault.state[None], cfg.n_particles, 0))
+        else:
+            self._X = to_lanes(from_lanes(self._X, cfg.n_particles, (NZ,))[anc])
         self.logw = np.zeros(cfg.n_particles)
         self.since_move = 0
         self.updated_since_move = 0
@@ -477,6 +552,11 @@ class RBPF:
         elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
         self._recompute()
+        if self._bank is not None:
+            if alarm:
+                self._bank.stop()
+            elif self._bank.active:
+                self._bank.refresh(self.theta.mean(axis=0))
 
     def reset_parameter(self, index: int) -> None:
         """Baseline reset after a part is replaced: parameter ``index`` re-learns from its
@@ -510,7 +590,10 @@ class RBPF:
             scalars["_v_ref"] = None
         meta = {"config": asdict(self.config), "rng": ckpt.generator_state(self.rng),
                 "scalars": scalars}
-        return ckpt.pack(meta, {k: getattr(self, k) for k in _ARRAYS if hasattr(self, k)})
+        arrays = {k: getattr(self, k) for k in _ARRAYS if hasattr(self, k)}
+        if self._bank is not None:
+            arrays.update(self._bank.arrays())
+        return ckpt.pack(meta, arrays)
 
     @classmethod
     def restore(cls, data: bytes) -> RBPF:
@@ -530,11 +613,28 @@ class RBPF:
                 setattr(self, k, type(getattr(self, k))(sc[k]))
         if sc.get("_at_prior") is None:     # a checkpoint from before the field existed
             self._at_prior = False
+        bank = {k: arrays.pop(k) for k in list(arrays) if k.startswith("bank_")}
         for k, v in arrays.items():
             setattr(self, k, v)
         if self._steady:
             self._recompute_gains()   # a function of (theta, v_ref): bit-identical again
+        if self._bank is not None:
+            self._bank.load(bank)
         return self
+
+    @property
+    def n_fault_detections(self) -> int:
+        """Changes found by the fault bank (:mod:`gateway.estimator.faultbank`)."""
+        return 0 if self._bank is None else self._bank.count
+
+    def last_fault(self) -> tuple[float, str, float, float] | None:
+        """The fault bank's latest detection: (data time, parameter name, located value
+        relative to nominal, data time its CUSUM crossing was confirmed), or None."""
+        last = None if self._bank is None else self._bank.last()
+        if last is None:
+            return None
+        t_s, p, value, crossed = last
+        return t_s, self.config.names[p], value / float(self.config.nominal_array[p]), crossed
 
     # --------------------------------------------------------------- outputs
     def _summary(self, t_s: float, updated: bool, w: np.ndarray | None = None) -> Estimate:
@@ -591,6 +691,10 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
     d["nominal"] = Theta(**d["nominal"])
     d["params"] = VehicleParams(**d["params"])
     d["monitor"] = None if d["monitor"] is None else MonitorConfig(**d["monitor"])
+    if d.get("faults") is not None:
+        bank: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
+                                for k, v in d["faults"].items()}
+        d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
             d[k] = tuple(v)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gateway.errors import EstimatorError
+from gateway.estimator.faultbank import FaultBankConfig
 from gateway.estimator.monitor import MonitorConfig
 from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
@@ -47,6 +48,8 @@ class RBPFConfig:
     ``fast_warmup_s``: in fast mode, the exact recursion runs this long after every
     filter start (the prior's large P converges the states quickly; the steady gains
     alone would take the slow mode's 8 s time constant);
+    ``faults``: the fault-hypothesis bank that detects abrupt changes
+    (:mod:`gateway.estimator.faultbank`; None: none);
     ``threads``: numba threads wanted for the kernels (None: all); the process sets them
     once (:func:`gateway.estimator.threads.kernel_threads`: 1 below 16 chunks, where the
     thread hand-off costs more than it saves); the filter never changes numba's globals.
@@ -78,6 +81,7 @@ class RBPFConfig:
     output_every: int = 1
     resample: bool = True
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
+    faults: FaultBankConfig | None = field(default_factory=FaultBankConfig)
     nominal: Theta = THETA_NOMINAL
     params: VehicleParams = field(default_factory=VehicleParams)
 

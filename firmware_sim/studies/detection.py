@@ -1,0 +1,297 @@
+"""Detection study: abrupt faults and nominal runs through the RBPF and its fault bank.
+
+``python -m firmware_sim.studies.detection faults --seeds 1 2 3`` runs each abrupt fault
+of issue 15 (Csy x0.25 and x0.5, Csay x0.3 and x0.5 at ``--fault-at`` s, other parameters
+nominal, Sec. 4.2 speed) with 3 and 5 sensors and prints one JSON line per run:
+
+- ``confirmed_s`` / ``detect_s``: fault to the bank's confirmed CUSUM crossing (0.25 s
+  after the crossing) / to its located detection on the right parameter (None: none);
+- ``track_s``: fault to the first estimate from which the parameter stays within 15 % of
+  its new value to the end;
+- ``alert_s`` / ``alarm_s``: fault to the first alert / ALARM on the parameter from the
+  default alert policy fed the 10 Hz estimates (:class:`gateway.alerts.policy.AlertPolicy`);
+- ``wrong``: detections on a healthy parameter; ``before``: detections before the fault;
+  ``alerts_healthy`` / ``alerts_before`` the same for alerts.
+
+``nominal --seconds 600`` runs healthy data and counts detections (false alarms);
+``summary < rows.jsonl`` gives the per-case medians and worst cases.
+Data seed ``2000 + seed`` (fresh: the accuracy study uses ``1000 + seed``), filter seed
+``seed``; the filter is the service's (:func:`gateway.runtime.pipeline.build_estimator`
+from the default ``[estimator]`` settings: fast mode, drift 0.01/sqrt(s), the innovation
+monitor and the fault bank). A measuring tool, not used by the service.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from firmware_sim.truth import SENSOR_NOISE_VAR, add_sensor_noise, select, simulate
+from gateway.alerts.policy import AlertPolicy
+from gateway.config import EstimatorConfig
+from gateway.estimator.rbpf import RBPF
+from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
+from gateway.records import Sample
+from gateway.runtime.pipeline import build_estimator
+
+FS_HZ = 1000.0
+V_MPS = 42.5
+TRACK_REL = 0.15
+FAULTS: tuple[tuple[int, float], ...] = ((0, 0.25), (0, 0.5), (1, 0.3), (1, 0.5))
+"""(parameter index, factor) of the abrupt faults."""
+DATA_SEED_OFFSET = 2000
+
+
+def fault_data(parameter: int | None, factor: float, sensors: int, seed: int,
+               seconds: float, fault_at_s: float, noise_scale: float = 1.0
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Truth theta (T, 3) and noisy measurements (T, ny) at 1 kHz; ``noise_scale``
+    multiplies the sensor noise's std (the filter keeps the model's)."""
+    n = int(round(seconds * FS_HZ))
+    th = np.repeat(THETA_NOMINAL.as_array()[None], n, 0)
+    if parameter is not None:
+        th[int(round(fault_at_s * FS_HZ)):, parameter] *= factor
+    rng = np.random.default_rng(DATA_SEED_OFFSET + seed)
+    run = simulate(th, np.full(n, V_MPS), FS_HZ, rng)
+    names = sensor_set(sensors)
+    var = {k: v * noise_scale**2 for k, v in SENSOR_NOISE_VAR.items()}
+    return th, add_sensor_noise(select(run.outputs, names), names, rng, var)
+
+
+def service_filter(sensors: int, seed: int, particles: int, mode: str) -> RBPF:
+    """The filter the service builds from its defaults (drift, monitor, fault bank)."""
+    cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
+                  mode=mode)
+    filt = build_estimator(cfg, FS_HZ)
+    assert isinstance(filt, RBPF)
+    return filt
+
+
+def run(Y: np.ndarray, filt: RBPF, every: int = 100
+        ) -> tuple[list[Any], list[tuple[float, str, float, float]], RBPF]:
+    """Estimates every ``every`` samples and the bank's detections (decision time,
+    parameter, located value relative to nominal, confirmation time)."""
+    found: list[tuple[float, str, float, float]] = []
+
+    def samples() -> Iterator[Sample]:
+        seen = 0
+        for k in range(len(Y)):
+            if filt.n_fault_detections > seen:
+                seen = filt.n_fault_detections
+                found.append(_last(filt))
+            yield Sample(t_s=(k + 1) / FS_HZ, values=Y[k], speed_mps=V_MPS)
+
+    est = filt.run(samples(), output_every=every)
+    if filt.n_fault_detections > len(found):
+        found.append(_last(filt))
+    return est, found, filt
+
+
+def _last(filt: RBPF) -> tuple[float, str, float, float]:
+    last = filt.last_fault()
+    assert last is not None
+    return last
+
+
+def alerts(est: Sequence[Any]) -> list[tuple[float, str, str]]:
+    """Raised alerts (data time, parameter, severity) of the default policy over ``est``."""
+    policy = AlertPolicy()
+    return [(a.t_s, a.parameter, a.severity.name) for e in est for a in policy.step(e)
+            if a.state.name == "RAISED"]
+
+
+def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
+              fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0
+              ) -> dict[str, Any]:
+    th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
+    t0 = time.perf_counter()
+    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode))
+    wall = time.perf_counter() - t0
+    new = th[-1, parameter]
+    ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
+    track = next((e.t_s - fault_at_s for i, e in enumerate(est)
+                  if e.t_s > fault_at_s and all(ok[i:])), None)
+    name = PARAM_NAMES[parameter]
+    right = [f for f in found if f[0] > fault_at_s and f[1] == name]
+    last = est[-1]
+    raised = alerts(est)
+    on_it = [t - fault_at_s for t, n, _ in raised if n == name and t > fault_at_s]
+    alarm = [t - fault_at_s for t, n, sev in raised if n == name and sev == "ALARM"]
+    return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
+            "noise_scale": noise_scale,
+            "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
+            "confirmed_s": round(right[0][3] - fault_at_s, 3) if right else None,
+            "detect_s": round(right[0][0] - fault_at_s, 3) if right else None,
+            "located_rel": round(right[0][2] / factor, 3) if right else None,
+            "track_s": None if track is None else round(track, 2),
+            "alert_s": round(on_it[0], 2) if on_it else None,
+            "alarm_s": round(alarm[0], 2) if alarm else None,
+            "alerts_healthy": sum(n != name for _, n, _ in raised),
+            "alerts_before": sum(t <= fault_at_s for t, _, _ in raised),
+            "wrong": sum(f[1] != name for f in found if f[0] > fault_at_s),
+            "before": sum(f[0] <= fault_at_s for f in found),
+            "detections": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
+            "monitor_alarms": filt.n_detections,
+            "final_err_pct": [round(100 * (m - t) / t, 2)
+                              for m, t in zip(last.mean[:3], th[-1], strict=True)],
+            "final_sigma_pct": [round(100 * s / m, 2)
+                                for m, s in zip(last.mean[:3], last.std[:3], strict=True)],
+            "wall_s": round(wall, 1)}
+
+
+def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode: str,
+                noise_scale: float = 1.0) -> dict[str, Any]:
+    th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
+    t0 = time.perf_counter()
+    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode))
+    last = est[-1]
+    return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
+            "noise_scale": noise_scale,
+            "particles": particles, "seconds": seconds, "detections": len(found),
+            "alerts": len(alerts(est)),
+            "detail": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
+            "monitor_alarms": filt.n_detections,
+            "final_err_pct": [round(100 * (m - t) / t, 2)
+                              for m, t in zip(last.mean[:3], th[-1], strict=True)],
+            "wall_s": round(time.perf_counter() - t0, 1)}
+
+
+def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per fault case (parameter, factor, sensors): runs, median and worst detection and
+    tracking delays (s), runs detected on the right parameter, wrong and early
+    detections. A case's worst is None when some run never detected or tracked."""
+    out = []
+    keys = sorted({(r["parameter"], r["factor"], r["sensors"]) for r in rows
+                   if r["what"] == "fault"})
+    for key in keys:
+        case = [r for r in rows if r["what"] == "fault"
+                and (r["parameter"], r["factor"], r["sensors"]) == key]
+        row: dict[str, Any] = {"parameter": key[0], "factor": key[1], "sensors": key[2],
+                               "runs": len(case)}
+        for name in ("detect_s", "track_s", "alert_s", "alarm_s"):
+            vals = [r.get(name) for r in case]
+            got = [v for v in vals if v is not None]
+            row[f"{name}_median"] = float(np.median(got)) if got else None
+            row[f"{name}_worst"] = max(got) if len(got) == len(vals) else None
+        row["detected"] = sum(r["detect_s"] is not None for r in case)
+        row["wrong"] = sum(r["wrong"] for r in case)
+        row["before"] = sum(r["before"] for r in case)
+        row["alerts_healthy"] = sum(r.get("alerts_healthy", 0) for r in case)
+        row["alerts_before"] = sum(r.get("alerts_before", 0) for r in case)
+        out.append(row)
+    return out
+
+
+def plot(rows: Sequence[dict[str, Any]], path: str) -> None:
+    """Detection and tracking delay against fault size, one panel per parameter: the
+    median over the realisations, bars from the best to the worst; 3 and 5 sensors."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    faults = [r for r in rows if r["what"] == "fault"]
+    params = [p for p in PARAM_NAMES if any(r["parameter"] == p for r in faults)]
+    fig, axes = plt.subplots(1, len(params), figsize=(4.2 * len(params), 3.6),
+                             squeeze=False, sharey=True)
+    styles = {("detect_s", 3): ("C0", "o"), ("detect_s", 5): ("C0", "s"),
+              ("track_s", 3): ("C1", "o"), ("track_s", 5): ("C1", "s")}
+    for ax, name in zip(axes[0], params, strict=True):
+        for (key, ns), (colour, marker) in styles.items():
+            sizes = sorted({r["factor"] for r in faults
+                            if r["parameter"] == name and r["sensors"] == ns})
+            pts = []
+            for f in sizes:
+                vals = [r[key] for r in faults if r["parameter"] == name
+                        and r["sensors"] == ns and r["factor"] == f]
+                got = [v for v in vals if v is not None]
+                if got:
+                    pts.append((f * (0.97 if ns == 3 else 1.03), float(np.median(got)),
+                                min(got), max(got) if len(got) == len(vals) else np.nan))
+            if pts:
+                x, med, lo, hi = (np.array(c) for c in zip(*pts, strict=True))
+                ax.errorbar(x, med, yerr=[med - lo, np.where(np.isnan(hi), 0, hi - med)],
+                            color=colour, marker=marker, ls="none", capsize=3,
+                            label=f"{'detect' if key == 'detect_s' else 'within 15 %'}, "
+                                  f"{ns} sensors")
+        ax.set_xscale("log")
+        ticks = sorted({r["factor"] for r in faults if r["parameter"] == name})
+        ax.minorticks_off()
+        ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+        ax.set_xlabel(f"{name}: new value / nominal")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("delay after the fault (s)")
+    axes[0][-1].legend(fontsize=7)
+    fig.suptitle("Abrupt faults: median, best to worst over realisations "
+                 "(python -m firmware_sim.studies.detection)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _case(text: str) -> tuple[int, float]:
+    name, _, factor = text.partition(":")
+    matches = [i for i, p in enumerate(PARAM_NAMES) if p.startswith(name)]
+    try:
+        value = float(factor)
+    except ValueError:
+        value = float("nan")
+    if len(matches) != 1 or not value > 0:
+        raise argparse.ArgumentTypeError(f"expected PARAMETER:FACTOR with PARAMETER one of "
+                                         f"{PARAM_NAMES} (a prefix will do) and FACTOR > 0, "
+                                         f"got {text!r}")
+    return matches[0], value
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m firmware_sim.studies.detection",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("what", choices=("faults", "nominal", "summary", "plot"),
+                    help="summary / plot: read the rows (JSON lines) from stdin and print "
+                         "one per case / write the PNG --plot")
+    ap.add_argument("--cases", type=_case, nargs="+", default=list(FAULTS),
+                    metavar="PARAMETER:FACTOR", help="faults (default: csy:0.25 csy:0.5 "
+                    "csay:0.3 csay:0.5)")
+    ap.add_argument("--plot", default="detection.png", help="plot: the PNG to write")
+    ap.add_argument("--noise-scale", type=float, default=1.0,
+                    help="sensor noise std of the data relative to the model's (another "
+                         "simulator's noise convention)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--sensors", type=int, nargs="+", default=[3, 5])
+    ap.add_argument("--seconds", type=float, default=None,
+                    help="run length (faults: 18 s, nominal: 600 s)")
+    ap.add_argument("--fault-at", type=float, default=8.0)
+    ap.add_argument("--particles", type=int, default=1000)
+    ap.add_argument("--mode", choices=("fast", "exact"), default="fast")
+    args = ap.parse_args(argv)
+    if args.what in ("summary", "plot"):
+        rows = [json.loads(line) for line in sys.stdin if line.strip()]
+        if args.what == "plot":
+            plot(rows, args.plot)
+        for row in summary(rows) if args.what == "summary" else []:
+            print(json.dumps(row))
+        return 0
+    for seed in args.seeds:
+        for ns in args.sensors:
+            if args.what == "nominal":
+                rows = [nominal_row(ns, seed, seconds=args.seconds or 600.0,
+                                    particles=args.particles, mode=args.mode,
+                                    noise_scale=args.noise_scale)]
+            else:
+                rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
+                                  fault_at_s=args.fault_at, particles=args.particles,
+                                  mode=args.mode, noise_scale=args.noise_scale)
+                        for p, f in args.cases]
+            for row in rows:
+                print(json.dumps(row), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

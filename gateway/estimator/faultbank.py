@@ -1,0 +1,420 @@
+"""Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
+
+Over 400 lines (420): the watch, confirm and locate phases share one state vector and
+one set of filters; splitting them would pass that state around.
+
+The particle cloud learns a parameter change only as fast as its roughening lets it
+crawl, and the innovation monitor (:mod:`gateway.estimator.monitor`) tests the cloud's
+average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 15: about
+1,000 nats/s for Csy 40 -> 10 kNs/m). This bank reads them directly, in three phases:
+
+- *Watch.* Beside the cloud run ``1 + 3 * len(factors)`` steady-gain Kalman filters
+  (:mod:`gateway.estimator.steady`): a *reference* at the cloud's posterior mean
+  ``theta_ref`` and one *hypothesis* per parameter p and factor f, ``theta_ref`` with its
+  p-th value times f. Each full sample adds every hypothesis's log-likelihood ratio to
+  the reference to a one-sided CUSUM (Page; Lindley's recursion)::
+
+      g_j <- max(0, g_j + ll_j - ll_ref)          crossing when g_j > h_nats
+
+  For a correct model ``exp(-h)`` bounds the chance that a CUSUM ever crosses (Wald).
+- *Confirm.* ``confirm_s`` after a crossing the largest CUSUM, if still over ``h``,
+  names the parameter and the side (drop or rise).
+- *Locate.* The hypotheses become a grid over that parameter on that side
+  (:meth:`FaultBank.locate_grid`), every filter restarting from the leading
+  hypothesis's state; their log-likelihood ratios to the reference are summed over
+  ``locate_s``, and the best grid value, if it beats the reference by ``h / 2``, is the
+  :class:`Detection`. The estimator then redraws that parameter of every particle over
+  :meth:`FaultBank.redraw_range` and gives every particle the best filter's state.
+
+Life cycle: the bank is idle until the cloud has ``start_after_s`` of updated data
+since its filters started and every parameter's posterior std is within
+``max_rel_std`` of its mean; it starts from the cloud's posterior mean state. After a
+start or a detection it holds its CUSUMs at 0 for ``hold_s``. ``theta_ref`` follows
+the cloud at every resample-move (:meth:`FaultBank.refresh`). Samples without data are
+predicted; the estimator stops the bank at a sample with only some sensors.
+
+State is four arrays (:meth:`FaultBank.arrays`), so checkpoints stay bit-exact; the
+gains are recomputed from them and the speed on restore. No I/O. Measured in
+docs/estimator.md "Change detection".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gateway.errors import EstimatorError
+from gateway.estimator.batch_expm import DiscreteBatch
+from gateway.estimator.kalman import n_chunks, to_lanes
+from gateway.estimator.lanecode import LANES
+from gateway.estimator.steady import NullVectors, SteadyGains, kf_steady_block, steady_gains
+from gateway.model.coordinates import NZ
+
+N_THETA = 3
+"""Parameters the bank tests (Csy, Csay, lambda); Ar, when estimated, is not."""
+
+
+@dataclass(frozen=True)
+class FaultBankConfig:
+    """The bank's hypotheses and decision rule (module docstring).
+
+    ``factors``: hypothesis values relative to the reference, each != 1; ``h_nats``:
+    CUSUM threshold in nats; ``start_after_s``: updated data (s) since a filter start
+    before the bank may start; ``max_rel_std``: largest posterior std / mean of any
+    parameter at which it starts; ``hold_s``: data time (s) its CUSUMs stay at 0 after a
+    start or a detection; ``confirm_s``: data time (s) from a crossing to the decision,
+    which takes the largest CUSUM then (parameter and side); ``locate_s``: data time (s)
+    over which the location grid's log-likelihoods are summed.
+    """
+
+    factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
+    h_nats: float = 25.0
+    start_after_s: float = 3.0
+    max_rel_std: float = 0.1
+    hold_s: float = 1.0
+    confirm_s: float = 0.25
+    locate_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        f = np.asarray(self.factors, dtype=float)
+        if f.ndim != 1 or len(f) == 0 or np.any(~(f > 0)) or np.any(f == 1.0) \
+                or len(set(self.factors)) != len(f):
+            raise EstimatorError(f"expected distinct positive hypothesis factors other than "
+                                 f"1, got {self.factors}")
+        if not self.h_nats > 0:
+            raise EstimatorError(f"expected a positive CUSUM threshold in nats, "
+                                 f"got {self.h_nats}")
+        for name in ("start_after_s", "max_rel_std", "hold_s", "confirm_s", "locate_s"):
+            if not getattr(self, name) >= 0:
+                raise EstimatorError(f"expected {name} >= 0, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class Detection:
+    """A located change: parameter index, the best factor of the location grid and that
+    grid's ratio between neighbours, the reference value, the data time of the decision
+    and of the confirmed CUSUM crossing (``confirm_s`` after it), and the best filter's
+    state (16,) at the decision."""
+
+    parameter: int
+    factor: float
+    t_s: float
+    reference: float
+    state: np.ndarray
+    confirmed_s: float
+    step: float
+
+
+# layout of the bank's scalar vector
+_ACTIVE, _HOLD, _LAST_T, _LAST_P, _LAST_F, _COUNT, _PEND, _MODE, _LOC_P, _LOC_SIDE, _LEFT, \
+    _CONF_T, _LAST_V = range(13)
+_WATCH, _LOCATE = 0.0, 1.0
+
+
+class FaultBank:
+    """The hypothesis filters, their CUSUMs and their life cycle (module docstring)."""
+
+    def __init__(self, config: FaultBankConfig, n_params: int, fs_hz: float,
+                 ar_paper: float) -> None:
+        self.config = config
+        self.fs_hz = float(fs_hz)
+        self.ar_paper = float(ar_paper)
+        self.factors = np.asarray(config.factors, dtype=float)
+        self.n_hyp = N_THETA * len(self.factors)
+        self.m = 1 + self.n_hyp
+        self._nch = n_chunks(self.m)
+        self.n_params = int(n_params)
+        self.ref = np.ones(self.n_params)          # theta_ref (d,), SI (and Ar)
+        self.g = np.zeros(self.n_hyp)              # CUSUMs, nats
+        self.x = np.zeros((self._nch, NZ * LANES))  # filter states, lane layout
+        self.vec = np.zeros(13)                    # active, hold left, last detection
+        self._gains: SteadyGains | None = None
+        self._phi = np.empty((self._nch, NZ * NZ * LANES))
+        self._qd = np.empty_like(self._phi)
+        self._taken = 0
+        self._part = 0
+        self._model: tuple[DiscreteBatch, NullVectors, np.ndarray, np.ndarray, float] | None \
+            = None
+
+    # ----------------------------------------------------------------- state
+    @property
+    def active(self) -> bool:
+        return bool(self.vec[_ACTIVE])
+
+    @property
+    def locating(self) -> bool:
+        """In the location phase (a confirmed crossing, the grid summing)."""
+        return self.active and self.vec[_MODE] == _LOCATE
+
+    @property
+    def busy(self) -> bool:
+        """A crossing is being confirmed or a change located: the innovation monitor's
+        alarm (which restarts every filter) waits for this bank's answer."""
+        return self.active and (self.vec[_MODE] == _LOCATE or self.vec[_PEND] > 0)
+
+    @property
+    def count(self) -> int:
+        """Detections since the estimator was made."""
+        return int(self.vec[_COUNT])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The state to checkpoint (the gains are a function of it and the speed)."""
+        return {"bank_ref": self.ref, "bank_g": self.g, "bank_x": self.x, "bank_vec": self.vec}
+
+    def load(self, arrays: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`arrays` output (after :meth:`set_model`): the gains are solved
+        again from it, bit-identical."""
+        for key, attr in (("bank_ref", "ref"), ("bank_g", "g"), ("bank_x", "x"),
+                          ("bank_vec", "vec")):
+            if key in arrays:
+                if arrays[key].shape != getattr(self, attr).shape:
+                    raise EstimatorError(f"expected {key} of shape {getattr(self, attr).shape}"
+                                         f", got {arrays[key].shape}")
+                setattr(self, attr, np.array(arrays[key], dtype=float))
+        if self.active and self._model is not None:
+            self._solve()
+
+    def snapshot(self) -> tuple[np.ndarray, ...]:
+        """A copy of the whole state, gains included, for :meth:`rewind` (the estimator
+        scans ahead to find where a detection falls, then steps again up to there)."""
+        assert self._gains is not None
+        gains = self._gains
+        return tuple(a.copy() for a in (self.ref, self.g, self.x, self.vec, self._phi,
+                                        self._qd, gains.p_pred, gains.g, gains.s, gains.c0,
+                                        gains.iters))
+
+    def rewind(self, snap: tuple[np.ndarray, ...]) -> None:
+        """Back to a :meth:`snapshot`."""
+        self.ref, self.g, self.x, self.vec, self._phi, self._qd = (a.copy() for a in snap[:6])
+        self._gains = SteadyGains(*(a.copy() for a in snap[6:]))
+
+    def stop(self) -> None:
+        """Idle until :meth:`start` (a filter restart, a sensor outage, a reseed)."""
+        self.vec[_ACTIVE] = 0.0
+        self.vec[_PEND] = 0.0
+        self.vec[_MODE] = _WATCH
+        self.g[:] = 0.0
+
+    def start(self, theta_ref: np.ndarray, state: np.ndarray) -> None:
+        """Start at the cloud's posterior mean ``theta_ref`` (d,) with every filter in the
+        posterior mean ``state`` (16,); the CUSUMs hold for ``hold_s``."""
+        self.vec[_ACTIVE] = 1.0
+        self.x[:] = to_lanes(np.repeat(np.asarray(state, dtype=float)[None], self.m, 0))
+        self._hold()
+        self.refresh(theta_ref)
+
+    def _hold(self) -> None:
+        self.g[:] = 0.0
+        self.vec[_PEND] = 0.0
+        self.vec[_HOLD] = round(self.config.hold_s * self.fs_hz)
+
+    def hypotheses(self) -> np.ndarray:
+        """theta of every filter (m, d): the reference, then parameter-major hypotheses
+        (watching) or the location grid of one parameter (locating)."""
+        th = np.repeat(self.ref[None], self.m, 0)
+        if self.vec[_MODE] == _LOCATE:
+            th[1:, int(self.vec[_LOC_P])] *= self.locate_grid()
+            return th
+        for p in range(N_THETA):
+            th[1 + p * len(self.factors):1 + (p + 1) * len(self.factors), p] *= self.factors
+        return th
+
+    def set_model(self, disc: DiscreteBatch, null: NullVectors, H: np.ndarray, r: np.ndarray,
+                  q_unit: float) -> None:
+        """The model at the current speed: the discretisation, null vectors, output
+        matrix (ny, 16), measurement variances (ny,) and track intensity per unit Ar."""
+        self._model = (disc, null, H, r, float(q_unit))
+        self._gains = SteadyGains.empty(self._nch, len(r))
+        if self.active:
+            self._solve()
+
+    def refresh(self, theta_ref: np.ndarray) -> None:
+        """Follow the cloud: the reference (and every hypothesis) moves to ``theta_ref``;
+        states and CUSUMs are kept. Ignored while locating (the grid is relative to the
+        reference at the crossing)."""
+        if self.vec[_MODE] == _LOCATE:
+            return
+        self.ref = np.array(theta_ref, dtype=float).reshape(self.n_params)
+        if self.active and self._model is not None:
+            self._solve()
+
+    def _solve(self) -> None:
+        assert self._model is not None and self._gains is not None
+        disc, null, H, r, q_unit = self._model
+        th = self.hypotheses()
+        ar = th[:, 3] if self.n_params > N_THETA else np.full(self.m, self.ar_paper)
+        disc.compute(th[:, :N_THETA], q_unit * ar, self._phi, self._qd)
+        steady_gains(self._phi, self._qd, to_lanes(null(th[:, :N_THETA])), H, r, self._gains)
+
+    # ------------------------------------------------------------------ step
+    def scan(self, Y: np.ndarray, full: np.ndarray, t0_s: float, dt_s: float
+             ) -> Detection | None:
+        """Step the bank over ``Y`` (k, ny) with ``full`` (k,) (False: predict only) and
+        stop after the sample that completes a detection; returns it (or None: all k
+        taken). Sample j has data time ``t0_s + j * dt_s``; :attr:`taken` tells how many
+        samples were consumed.
+        """
+        k = len(Y)
+        self._taken = 0
+        det = None
+        while det is None and self._taken < k and self.active:
+            j0 = self._taken
+            det = self._scan_part(Y[j0:], full[j0:], t0_s + j0 * dt_s, dt_s)
+            self._taken = j0 + self._part
+        self._taken = k if det is None else self._taken
+        return det
+
+    def _scan_part(self, Y: np.ndarray, full: np.ndarray, t0_s: float, dt_s: float
+                   ) -> Detection | None:
+        """Up to the next change of phase: a confirmed crossing starts the location
+        phase (returns None, having consumed ``_part`` samples); the end of the location
+        phase returns the detection."""
+        assert self._gains is not None and self._model is not None
+        k, H = len(Y), self._model[2]
+        LL = np.empty((k, self._nch * LANES))
+        NIS = np.empty_like(LL)
+        x0 = self.x.copy()
+        kf_steady_block(self.x, self._phi, H, Y, full, self._gains, LL, NIS)
+        d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)     # (k, J)
+        self._part = k
+        if self.vec[_MODE] == _LOCATE:
+            left = int(self.vec[_LEFT])
+            if left > k:
+                self.g += d.sum(axis=0)
+                self.vec[_LEFT] = left - k
+                return None
+            j = left - 1
+            self._rerun(x0, Y, full, j)
+            self.g += d[:j + 1].sum(axis=0)
+            return self._located(t0_s + j * dt_s)
+        hold = int(self.vec[_HOLD])
+        held = min(hold, k)
+        d[:held] = 0.0
+        self.vec[_HOLD] = hold - held
+        g_path = _cusum_path(self.g, d)                                   # (k, J)
+        at = self._decision(g_path)
+        if at is None:
+            self.g = g_path[-1].copy()
+            return None
+        self._rerun(x0, Y, full, at)
+        self._locate(int(np.argmax(g_path[at])), t0_s + at * dt_s)
+        return None
+
+    def _rerun(self, x0: np.ndarray, Y: np.ndarray, full: np.ndarray, j: int) -> None:
+        """The states stepped from ``x0`` through sample ``j`` only."""
+        assert self._gains is not None and self._model is not None
+        self._part = j + 1
+        self.x = x0
+        LL = np.empty((j + 1, self._nch * LANES))
+        kf_steady_block(self.x, self._phi, self._model[2], Y[:j + 1], full[:j + 1],
+                        self._gains, LL, np.empty_like(LL))
+
+    def _state_of(self, filt: int) -> np.ndarray:
+        return self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES].copy()
+
+    def _locate(self, best: int, t_s: float) -> None:
+        """A confirmed crossing by hypothesis ``best``: every filter restarts from its
+        state, the hypotheses become a grid over the changed parameter on the crossing's
+        side of the reference (:meth:`locate_grid`), and their log-likelihood ratios
+        are summed over ``locate_s``."""
+        p, fi = divmod(best, len(self.factors))
+        state = self._state_of(1 + best)
+        self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
+        self.vec[_LOC_SIDE] = -1.0 if self.factors[fi] < 1.0 else 1.0
+        self.vec[_LEFT] = max(1, round(self.config.locate_s * self.fs_hz))
+        self.vec[_CONF_T] = t_s
+        self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
+        self.g[:] = 0.0
+        self._solve()
+
+    def locate_grid(self) -> np.ndarray:
+        """The location phase's factors (J,): log-spaced from half the smallest factor
+        to 0.9 (a drop), or from 1/0.9 to twice the largest (a rise)."""
+        if self.vec[_LOC_SIDE] < 0:
+            lo, hi = float(self.factors.min()) / 2.0, 0.9
+        else:
+            lo, hi = 1.0 / 0.9, 2.0 * float(self.factors.max())
+        return np.geomspace(lo, hi, self.n_hyp)
+
+    def _located(self, t_s: float) -> Detection | None:
+        """The location phase's answer: the best grid value, if it beats the reference
+        by ``h_nats / 2`` over ``locate_s`` (else no change: watch again)."""
+        grid = self.locate_grid()
+        best = int(np.argmax(self.g))
+        p = int(self.vec[_LOC_P])
+        if not self.g[best] > self.config.h_nats / 2.0:
+            self.vec[_MODE] = _WATCH
+            self._hold()
+            self._solve()
+            return None
+        det = Detection(parameter=p, factor=float(grid[best]), t_s=t_s,
+                        reference=float(self.ref[p]), state=self._state_of(1 + best),
+                        confirmed_s=float(self.vec[_CONF_T]),
+                        step=float(grid[1] / grid[0]))
+        self.vec[_LAST_T], self.vec[_LAST_P], self.vec[_LAST_F] = t_s, p, det.factor
+        self.vec[_LAST_V] = det.factor * det.reference
+        self.vec[_COUNT] += 1
+        self.vec[_MODE] = _WATCH
+        # the bank restarts around the located value; the estimator refreshes theta_ref
+        self.x[:] = to_lanes(np.repeat(det.state[None], self.m, 0))
+        self._hold()
+        self._solve()
+        return det
+
+    def _decision(self, g_path: np.ndarray) -> int | None:
+        """The row of ``g_path`` (k, J) at which a detection is decided, or None.
+
+        A crossing of ``h_nats`` is confirmed ``confirm_s`` later if some CUSUM is then
+        still above it (the first samples after a change can favour a hypothesis on
+        another parameter); the decision may fall in a later call (``_PEND``).
+        """
+        k, h = len(g_path), self.config.h_nats
+        pend, start = int(self.vec[_PEND]), 0
+        confirm = int(round(self.config.confirm_s * self.fs_hz))
+        while start < k:
+            if pend == 0:
+                over = np.nonzero((g_path[start:] > h).any(axis=1))[0]
+                if len(over) == 0:
+                    break
+                decide = start + int(over[0]) + confirm
+            else:
+                decide = start + pend - 1
+            pend = 0
+            if decide >= k:
+                pend = decide - k + 1
+                break
+            if g_path[decide].max() > h:
+                self.vec[_PEND] = 0
+                return decide
+            start = decide + 1
+        self.vec[_PEND] = pend
+        return None
+
+    @property
+    def taken(self) -> int:
+        """Samples consumed by the last :meth:`scan`."""
+        return self._taken
+
+    @staticmethod
+    def redraw_range(det: Detection) -> tuple[float, float]:
+        """The values (lo, hi) over which the detected parameter is redrawn: three grid
+        steps either side of the located value."""
+        value = det.factor * det.reference
+        return value / det.step**3, value * det.step**3
+
+    def last(self) -> tuple[float, int, float, float] | None:
+        """(data time, parameter index, located value, time the crossing was confirmed)
+        of the latest detection, or None."""
+        if self.count == 0:
+            return None
+        return (float(self.vec[_LAST_T]), int(self.vec[_LAST_P]), float(self.vec[_LAST_V]),
+                float(self.vec[_CONF_T]))
+
+
+def _cusum_path(g0: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Page's CUSUM ``g_t = max(0, g_{t-1} + d_t)`` for every column at once: with
+    ``T_t = g0 + sum d``, ``g_t = T_t - min(0, min_{s<=t} T_s)`` (Lindley). (k, J)."""
+    T = g0[None] + np.cumsum(d, axis=0)
+    return T - np.minimum(np.minimum.accumulate(T, axis=0), 0.0)
+

@@ -1,0 +1,99 @@
+"""The fault-hypothesis bank: its CUSUM, and abrupt faults found and tracked by the RBPF.
+
+The campaign's short form (issue 15): simulator truth with a damper step, the service's
+filter (fast mode, m = 1000), fresh data seeds (``firmware_sim.studies.detection``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from firmware_sim.studies.detection import FS_HZ, V_MPS, fault_data, fault_row, service_filter
+from gateway.errors import EstimatorError
+from gateway.estimator.faultbank import FaultBankConfig, _cusum_path
+from gateway.estimator.rbpf import RBPF, RBPFConfig
+from gateway.records import Sample
+
+
+def test_vectorised_cusum_is_pages_recursion() -> None:
+    rng = np.random.default_rng(0)
+    d = rng.normal(-0.2, 1.0, size=(500, 4))
+    g0 = np.array([0.0, 3.0, 0.5, 7.0])
+    got = _cusum_path(g0, d)
+    g, want = g0.copy(), np.empty_like(d)
+    for t in range(len(d)):
+        g = np.maximum(0.0, g + d[t])
+        want[t] = g
+    np.testing.assert_allclose(got, want, atol=1e-12)
+
+
+@pytest.mark.parametrize("bad", [dict(factors=(0.5, 1.0)), dict(factors=()),
+                                 dict(factors=(0.5, 0.5)), dict(factors=(-0.5,)),
+                                 dict(h_nats=0.0), dict(locate_s=-1.0)])
+def test_bad_bank_settings_are_refused(bad: dict) -> None:
+    with pytest.raises(EstimatorError, match="expected"):
+        FaultBankConfig(**bad)
+
+
+def _samples(Y: np.ndarray) -> list[Sample]:
+    return [Sample(t_s=(k + 1) / FS_HZ, values=Y[k], speed_mps=V_MPS) for k in range(len(Y))]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("parameter, factor, sensors, seed",
+                         [(0, 0.25, 3, 11), (1, 0.5, 5, 12)])
+def test_abrupt_fault_is_found_on_its_parameter_and_tracked(parameter: int, factor: float,
+                                                            sensors: int, seed: int) -> None:
+    """A damper step at 8 s: the bank decides on the right parameter within 3 s, on no
+    other, and the estimate stays within 15 % of the new value from +5 s (the issue's
+    target: alert at +3 s median, within 15 % by +10 s)."""
+    row = fault_row(parameter, factor, sensors, seed, seconds=14.0, fault_at_s=8.0,
+                    particles=1000, mode="fast")
+    assert row["detect_s"] is not None and row["detect_s"] <= 3.0, row
+    assert row["wrong"] == 0 and row["before"] == 0, row
+    assert row["track_s"] is not None and row["track_s"] <= 5.0, row
+
+
+@pytest.mark.slow
+def test_healthy_data_raise_no_detection() -> None:
+    """30 s of nominal data, 3 and 5 sensors: the bank starts and never decides."""
+    for sensors in (3, 5):
+        _, Y = fault_data(None, 1.0, sensors, seed=13, seconds=30.0, fault_at_s=0.0)
+        filt = service_filter(sensors, 13, 1000, "fast")
+        filt.run(_samples(Y), output_every=100)
+        assert filt._bank is not None and filt._bank.active
+        assert filt.n_fault_detections == 0 and filt.n_detections == 0
+
+
+@pytest.mark.slow
+def test_checkpoint_while_locating_restores_bit_exact() -> None:
+    """Checkpoint in the middle of the location phase; both filters then give the same
+    estimates, bit for bit, through the detection and after it."""
+    _, Y = fault_data(0, 0.25, 3, seed=14, seconds=12.0, fault_at_s=6.0)
+    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=256, sensors=3, seed=14, mode="fast")
+    a = RBPF(cfg)
+    smp = _samples(Y)
+    k = 0
+    while not (a._bank is not None and a._bank.locating):
+        a.step(smp[k])
+        k += 1
+        assert k < len(smp), "the bank never started locating"
+    b = RBPF.restore(a.checkpoint())
+    ea = a.run(smp[k:], output_every=50)
+    eb = b.run(smp[k:], output_every=50)
+    assert a.n_fault_detections == b.n_fault_detections >= 1
+    assert [(e.mean, e.std) for e in ea] == [(e.mean, e.std) for e in eb]
+
+
+@pytest.mark.slow
+def test_block_path_equals_per_sample_path_through_a_detection() -> None:
+    _, Y = fault_data(1, 0.3, 3, seed=15, seconds=11.0, fault_at_s=6.0)
+    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=128, sensors=3, seed=15, mode="fast")
+    a, b = RBPF(cfg), RBPF(cfg)
+    smp = _samples(Y)
+    ea = a.run(smp, output_every=100)
+    eb = [b.step(s) for s in smp][99::100]
+    assert a.n_fault_detections == b.n_fault_detections >= 1
+    assert a.last_fault() == b.last_fault()
+    assert [e.mean for e in ea] == [e.mean for e in eb]
