@@ -217,5 +217,6 @@ def test_console_and_policy_judge_alike(std_rel):
     assert csy["sigma_rel"] == pytest.approx(std_rel)
     assert csy["confident"] is (std_rel <= 0.05)
     assert bool(events) is csy["confident"]
-    if events:
-        assert events[0].severity == Severity.ALARM and events[0].value_rel == csy["value_rel"]
+    if events:       # a sure WARNING may come first (4 sigma past 0.55), the ALARM by 3 s
+        assert max(ev.severity for ev in events) == Severity.ALARM
+        assert all(ev.value_rel == csy["value_rel"] for ev in events)
