@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (420): the watch, confirm and locate phases share one state vector and
+Over 400 lines (444): the watch, confirm and locate phases share one state vector and
 one set of filters; splitting them would pass that state around.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
@@ -21,7 +21,10 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   names the parameter and the side (drop or rise).
 - *Locate.* The hypotheses become a grid over that parameter on that side
   (:meth:`FaultBank.locate_grid`), every filter restarting from the leading
-  hypothesis's state; their log-likelihood ratios to the reference are summed over
+  hypothesis's state less its unobservable static-yaw component (a conicity change
+  would otherwise turn that arbitrary component into a transient the data never had,
+  and the grid read it as a larger rise); their log-likelihood ratios to the reference
+  are summed over
   ``locate_s``, and the best grid value, if it beats the reference by ``h / 2``, is the
   :class:`Detection`. The estimator then redraws that parameter of every particle over
   :meth:`FaultBank.redraw_range` and gives every particle the best filter's state.
@@ -48,7 +51,13 @@ from gateway.errors import EstimatorError
 from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.kalman import n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
-from gateway.estimator.steady import NullVectors, SteadyGains, kf_steady_block, steady_gains
+from gateway.estimator.steady import (
+    NullVectors,
+    SteadyGains,
+    kf_steady_block,
+    steady_gains,
+    without_null,
+)
 from gateway.model.coordinates import NZ
 
 N_THETA = 3
@@ -311,7 +320,22 @@ class FaultBank:
                         self._gains, LL, np.empty_like(LL))
 
     def _state_of(self, filt: int) -> np.ndarray:
-        return self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES].copy()
+        """Filter ``filt``'s state (16,) without its component along the null vector of
+        its own theta (:meth:`_neutral`)."""
+        x = self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES].copy()
+        return self._neutral(x, self.hypotheses()[filt])
+
+    def _neutral(self, x: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """``x`` (16,) less its component along the null vector v0 of ``theta``.
+
+        Under theta the static yawed set-up v0 is unobservable, so that component of a
+        filter's state is arbitrary; under another conicity it is no longer static and
+        would predict a transient the data never had. Every filter that takes over a
+        state from a filter at another theta takes it without that component.
+        """
+        assert self._model is not None
+        v0 = self._model[1](np.asarray(theta, dtype=float)[None, :N_THETA])
+        return without_null(x[None], v0)[0]
 
     def _locate(self, best: int, t_s: float) -> None:
         """A confirmed crossing by hypothesis ``best``: every filter restarts from its

@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (700): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines (707): the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor and fault bank
 are already separate modules.
 
@@ -10,9 +10,11 @@ Per sample: every filter predicts and updates (:func:`gateway.estimator.kalman.k
 log-weights add the filters' predictive log-likelihoods, and when the effective sample
 size drops below ``ess_threshold * m`` the particles are resampled (systematic) and
 moved by the Liu-West kernel compounded over the samples since the last move
-(:func:`gateway.estimator.particles.liu_west_move`); only then are Phi(theta, v) and Qd(theta, v)
-recomputed, exactly and batched (:mod:`gateway.estimator.batch_expm`). Between moves each
-particle is an exact Kalman filter for fixed theta. See docs/estimator.md.
+(:func:`gateway.estimator.particles.liu_west_move`); a moved particle keeps its
+ancestor's state (optionally less its static-yaw component, ``moves_drop_null``); only
+then are Phi(theta, v) and Qd(theta, v) recomputed, exactly and batched
+(:mod:`gateway.estimator.batch_expm`). Between moves each particle is an exact Kalman
+filter for fixed theta. See docs/estimator.md.
 
 Modes (``config.mode``): ``"exact"`` runs that recursion throughout; ``"fast"`` runs it
 for ``fast_warmup_s`` after every filter start, then gives every particle the steady
@@ -56,6 +58,7 @@ from gateway.estimator.steady import (
     kf_subset,
     steady_gains,
     steady_posterior,
+    without_null,
 )
 from gateway.model.coordinates import NZ, FilterCoords
 from gateway.model.vehicle import (
@@ -172,8 +175,7 @@ class RBPF:
         self._v_ref = float(v_mps)
         self._H = np.ascontiguousarray(self.coords.output(self.sensors, v_mps))
         self._disc = DiscreteBatch(self.coords, v_mps, 1.0 / cfg.fs_hz)
-        if self._fast or self._bank is not None:
-            self._null = NullVectors(self.coords.terms(v_mps), cfg.nominal.as_array())
+        self._null = NullVectors(self.coords.terms(v_mps), cfg.nominal.as_array())
         if self._bank is not None:
             self._bank.set_model(self._disc, self._null, self._H, self._r,
                                  float(track_intensity(1.0, v_mps)))
@@ -515,6 +517,7 @@ class RBPF:
         cfg = self.config
         floor = self._floor_log()
         anc = pt.systematic(w, float(self.rng.random()))
+        v0_anc = self._null(self.theta[anc]) if cfg.moves_drop_null else None
         znew = pt.liu_west_move(self.rng, self.z, w, anc, delta=cfg.delta,
                                 steps=self.since_move, floor_log=floor,
                                 walk_var_log=self._walk_var_log())
@@ -535,7 +538,10 @@ class RBPF:
         if fault is not None:
             self._X = to_lanes(np.repeat(fault.state[None], cfg.n_particles, 0))
         else:
-            self._X = to_lanes(from_lanes(self._X, cfg.n_particles, (NZ,))[anc])
+            X = from_lanes(self._X, cfg.n_particles, (NZ,))[anc]
+            # optionally less the static-yaw component its new theta would turn into a
+            # false transient (steady.without_null; RBPFConfig.moves_drop_null)
+            self._X = to_lanes(X if v0_anc is None else without_null(X, v0_anc))
         self.logw = np.zeros(cfg.n_particles)
         self.since_move = 0
         self.updated_since_move = 0

@@ -48,6 +48,10 @@ class RBPFConfig:
     ``fast_warmup_s``: in fast mode, the exact recursion runs this long after every
     filter start (the prior's large P converges the states quickly; the steady gains
     alone would take the slow mode's 8 s time constant);
+    ``moves_drop_null``: a moved particle keeps its ancestor's state less the component
+    along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
+    off by default until the fast-vs-exact, drift and accuracy campaigns are re-measured
+    with it (docs/estimator.md "Start-up lock-in": it removes the 5 s outliers);
     ``faults``: the fault-hypothesis bank that detects abrupt changes
     (:mod:`gateway.estimator.faultbank`; None: none);
     ``threads``: numba threads wanted for the kernels (None: all); the process sets them
@@ -79,6 +83,7 @@ class RBPFConfig:
     mode: str = "exact"
     fast_warmup_s: float = 2.0
     output_every: int = 1
+    moves_drop_null: bool = False
     resample: bool = True
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
     faults: FaultBankConfig | None = field(default_factory=FaultBankConfig)

@@ -1,6 +1,6 @@
 """Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
 
-Over 400 lines (530): the generators of two lane kernels (the doubling with its Newton
+Over 400 lines (553): the generators of two lane kernels (the doubling with its Newton
 step, the block of steady steps) and their typed wrappers, one concern.
 
 A particle's covariance and gains depend only on its theta and the speed, never on the
@@ -442,6 +442,20 @@ class NullVectors:
         v[:, self._col] = 1.0
         v[:, self._cols] = np.linalg.solve(sub, rhs[..., None])[..., 0]
         return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def without_null(x: np.ndarray, v0: np.ndarray) -> np.ndarray:
+    """States ``x`` (m, 16) less their component along the unit null vectors ``v0``
+    (m, 16) of the theta they were estimated under.
+
+    Under that theta the static yawed set-up v0 is unobservable (H v0 = 0, Phi v0 = v0),
+    so a filter's component along it is arbitrary. Under another theta (a resample-move's
+    jitter, a fault hypothesis) A v0 is no longer 0 and that component would predict a
+    transient the data never had, larger for a larger change of conicity. Every state
+    that passes to a filter at another theta passes through here (docs/estimator.md,
+    "Change detection" and "Start-up lock-in").
+    """
+    return x - np.einsum("mi,mi->m", x, v0)[:, None] * v0
 
 
 def steady_gains(phi: np.ndarray, qd: np.ndarray, v0: np.ndarray, H: np.ndarray,

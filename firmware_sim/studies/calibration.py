@@ -1,0 +1,166 @@
+"""Calibration study: does the truth lie inside the stated +-2 sigma, and how does sigma
+compare with the maximum-likelihood sigma on the same record?
+
+``python -m firmware_sim.studies.calibration paper --seeds 1 ... 20`` runs the paper's
+Sec. 4.2 scenario (theta = 20 kNs/m, 3000 kNs/m, 0.15; 42.5 m/s), 3 and 5 sensors, 20 s,
+through the service's filter (:func:`firmware_sim.studies.detection.service_filter`: fast
+mode, m = 1000, drift, monitor and fault bank) and, on the same record's first 5 s and
+all 20 s, through the prediction-error maximum likelihood with its observed-information
+sigma (:class:`gateway.identify.pipeline.PredictionErrorIdentifier`). One JSON line per
+record and check time: the filter's mean and sigma, the ML estimate and sigma, the
+filter's z-score ``(mean - truth) / sigma`` and ``sigma / sigma_ML``.
+
+``box --seeds 1 ... 50`` draws theta uniformly over the filter's prior box
+(:class:`gateway.estimator.rbpf_config.RBPFConfig` ``prior_lo``/``prior_hi`` times
+nominal) and runs 10 s (start-up: is the lock-in gone everywhere in the box?); no ML fit.
+
+``--moves-drop-null`` runs the filter with that option of
+:class:`gateway.estimator.rbpf_config.RBPFConfig` on (off by default).
+
+``summary < rows.jsonl`` gives, per (study, option, sensors, time): the share of records
+with the truth inside +-2 sigma per parameter, the largest |z|, and the smallest
+sigma / sigma_ML.
+Data seed ``3000 + seed`` (paper) or ``4000 + seed`` (box), fresh against the accuracy
+(1000 +) and detection (2000 +) studies; filter seed ``seed``. A measuring tool, not used
+by the service.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
+from firmware_sim.truth import add_sensor_noise, select, simulate
+from gateway.estimator.rbpf import RBPF
+from gateway.estimator.rbpf_config import RBPFConfig
+from gateway.identify.data import Dataset
+from gateway.identify.pipeline import PredictionErrorIdentifier
+from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42, sensor_set
+
+PAPER_AT_S = (5.0, 20.0)
+BOX_AT_S = (10.0,)
+SEED_OFFSET = {"paper": 3000, "box": 4000}
+
+
+def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float) -> np.ndarray:
+    """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz, 42.5 m/s."""
+    n = int(round(seconds * FS_HZ))
+    rng = np.random.default_rng(data_seed)
+    truth = simulate(np.repeat(np.asarray(theta, dtype=float)[None], n, 0),
+                     np.full(n, V_MPS), FS_HZ, rng)
+    names = sensor_set(sensors)
+    return add_sensor_noise(select(truth.outputs, names), names, rng)
+
+
+def box_theta(seed: int) -> np.ndarray:
+    """theta (3,) drawn uniformly over the prior box (the filter's own prior)."""
+    cfg = RBPFConfig(fs_hz=FS_HZ)
+    lo, hi = cfg.box(cfg.prior_lo, cfg.prior_hi)
+    return np.random.default_rng(SEED_OFFSET["box"] + 500 + seed).uniform(lo, hi)
+
+
+def ml_fit(Y: np.ndarray, sensors: int, seconds: float) -> tuple[list[float], list[float]]:
+    """Maximum-likelihood theta and its sigma (SI) from the first ``seconds`` of ``Y``."""
+    n = int(round(seconds * FS_HZ))
+    t = np.arange(n) / FS_HZ
+    ds = Dataset(t_s=t, measured=Y[:n], sensors=sensor_set(sensors),
+                 speed_mps=np.full(n, V_MPS), fs_hz=FS_HZ, source="calibration")
+    res = PredictionErrorIdentifier().fit(ds)
+    return list(res.values), list(res.std)
+
+
+def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
+             ml: bool, at_s: Sequence[float] | None = None,
+             moves_drop_null: bool = False) -> list[dict[str, Any]]:
+    """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
+    record, which lasts until the last of them; ``moves_drop_null`` switches that
+    option of the service's filter on (:class:`gateway.estimator.rbpf_config.RBPFConfig`)."""
+    theta = THETA_SEC42.as_array() if what == "paper" else box_theta(seed)
+    at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
+    Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s))
+    filt = service_filter(sensors, seed, particles, mode)
+    if moves_drop_null:
+        filt = RBPF(replace(filt.config, moves_drop_null=True))
+    est, found, _ = run(Y, filt)
+    out = []
+    for t in at_s:
+        e = min(est, key=lambda x: abs(x.t_s - t))
+        m, s = np.array(e.mean[:3]), np.array(e.std[:3])
+        row: dict[str, Any] = {
+            "study": what, "sensors": sensors, "seed": seed, "t_s": t, "mode": mode,
+            "moves_drop_null": moves_drop_null,
+            "particles": particles, "truth": theta.tolist(), "mean": m.tolist(),
+            "std": s.tolist(), "z": np.round((m - theta) / s, 3).tolist(),
+            "err_pct": np.round(100 * (m - theta) / theta, 3).tolist(),
+            "sigma_pct": np.round(100 * s / m, 3).tolist(),
+            "detections": len(found)}
+        if ml:
+            ml_m, ml_s = ml_fit(Y, sensors, t)
+            row["ml_mean"], row["ml_std"] = ml_m, ml_s
+            row["ml_z"] = np.round((np.array(ml_m) - theta) / np.array(ml_s), 3).tolist()
+            row["sigma_over_ml"] = np.round(s / np.array(ml_s), 3).tolist()
+        out.append(row)
+    return out
+
+
+def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (study, option, sensors, t_s): records; per parameter the share with |z| <= 2, the
+    largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
+    out = []
+    def key_of(r: dict[str, Any]) -> tuple[str, bool, int, float]:
+        return r["study"], bool(r.get("moves_drop_null", False)), r["sensors"], r["t_s"]
+
+    for key in sorted({key_of(r) for r in rows}):
+        case = [r for r in rows if key_of(r) == key]
+        z = np.abs(np.array([r["z"] for r in case]))
+        row: dict[str, Any] = {"study": key[0], "moves_drop_null": key[1], "sensors": key[2],
+                               "t_s": key[3], "records": len(case)}
+        for i, name in enumerate(PARAM_NAMES):
+            row[f"{name}_within_2sigma"] = round(float(np.mean(z[:, i] <= 2.0)), 3)
+            row[f"{name}_max_abs_z"] = round(float(z[:, i].max()), 2)
+            if all("sigma_over_ml" in r for r in case):
+                ratio = np.array([r["sigma_over_ml"][i] for r in case])
+                mlz = np.abs(np.array([r["ml_z"][i] for r in case]))
+                row[f"{name}_min_sigma_over_ml"] = round(float(np.nanmin(ratio)), 3)
+                row[f"{name}_median_sigma_over_ml"] = round(float(np.nanmedian(ratio)), 3)
+                row[f"{name}_ml_within_2sigma"] = round(float(np.mean(mlz <= 2.0)), 3)
+        out.append(row)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m firmware_sim.studies.calibration",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("what", choices=("paper", "box", "summary"),
+                    help="summary: read the rows (JSON lines) from stdin")
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(range(1, 21)))
+    ap.add_argument("--sensors", type=int, nargs="+", default=[3, 5])
+    ap.add_argument("--particles", type=int, default=1000)
+    ap.add_argument("--mode", choices=("fast", "exact"), default="fast")
+    ap.add_argument("--no-ml", action="store_true", help="paper: skip the ML fits")
+    ap.add_argument("--moves-drop-null", action="store_true",
+                    help="switch the filter's moves_drop_null option on")
+    args = ap.parse_args(argv)
+    if args.what == "summary":
+        rows = [json.loads(line) for line in sys.stdin if line.strip()]
+        for row in summary(rows):
+            print(json.dumps(row))
+        return 0
+    for seed in args.seeds:
+        for ns in args.sensors:
+            for row in rows_for(args.what, seed, ns, args.particles, args.mode,
+                                ml=args.what == "paper" and not args.no_ml,
+                                moves_drop_null=args.moves_drop_null):
+                print(json.dumps(row), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,61 @@
+"""The calibration study's short form (issue 15): the stated sigma against the truth
+and against the maximum-likelihood sigma on the same record, and start-up inside the
+prior box (``firmware_sim.studies.calibration``; the campaign is in docs/estimator.md,
+"Calibration of the stated sigma")."""
+
+from __future__ import annotations
+
+import pytest
+
+from firmware_sim.studies.calibration import box_theta, rows_for, summary
+from gateway.estimator.rbpf_config import RBPFConfig
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sensors, seed", [(3, 21), (5, 22)])
+def test_stated_sigma_covers_the_truth_and_is_not_below_the_ml_sigma(sensors: int,
+                                                                      seed: int) -> None:
+    """Paper scenario, 20 s, the service's filter, fresh seeds: every parameter within
+    3 stated sigma of the truth, and sigma at least 0.8 x the ML sigma on the same record
+    (the issue's ratio criterion).
+
+    The issue's 2-sigma criterion is a coverage share over >= 20 records (the campaign);
+    a calibrated filter fails "all three within 2 sigma" on about 1 record in 7, so one
+    record cannot test it (seed 22 here has Csay at -2.4 sigma). 3 sigma on one record
+    fails about 1 in 120 when calibrated, and catches lock-in (6-7 sigma at 5 s)."""
+    (row,) = rows_for("paper", seed, sensors, 1000, "fast", ml=True, at_s=(20.0,))
+    assert all(abs(z) <= 3.0 for z in row["z"]), row
+    assert all(r >= 0.8 for r in row["sigma_over_ml"]), row
+    # the ML fit itself is sane on this record (else the ratio means nothing)
+    assert all(abs(z) <= 3.0 for z in row["ml_z"]), row
+
+
+@pytest.mark.slow
+def test_dropping_the_null_component_at_moves_removes_a_start_up_outlier() -> None:
+    """5 sensors, paper scenario, campaign seed 10 at 5 s: the default filter ends with
+    Csy +12 % and lambda +9.7 % at 6.6 and 6.0 sigma. With ``moves_drop_null`` every
+    parameter is within 3 sigma of the truth."""
+    (row,) = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=(5.0,),
+                      moves_drop_null=True)
+    assert all(abs(z) <= 3.0 for z in row["z"]), row
+
+
+@pytest.mark.slow
+def test_start_up_anywhere_in_the_prior_box() -> None:
+    """Two parameter sets drawn over the prior box, 3 and 5 sensors, 10 s: no parameter
+    beyond 4 sigma of the truth (the issue's bound), and the summary counts them."""
+    rows = [row for seed, ns in ((51, 3), (52, 5))
+            for row in rows_for("box", seed, ns, 1000, "fast", ml=False)]
+    assert len(rows) == 2
+    for row in rows:
+        assert all(abs(z) <= 4.0 for z in row["z"]), row
+    assert {s["sensors"] for s in summary(rows)} == {3, 5}
+
+
+def test_box_draws_lie_in_the_prior_box() -> None:
+    cfg = RBPFConfig(fs_hz=1000.0)
+    lo, hi = cfg.box(cfg.prior_lo, cfg.prior_hi)
+    for seed in range(1, 40):
+        th = box_theta(seed)
+        assert ((th >= lo) & (th <= hi)).all(), (seed, th)
+    assert not (box_theta(1) == box_theta(2)).all()
