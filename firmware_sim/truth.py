@@ -213,6 +213,16 @@ def add_sensor_noise(outputs: np.ndarray, sensors: tuple[str, ...], rng: np.rand
     return outputs + rng.standard_normal(outputs.shape) * std
 
 
+def measured(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
+             sensors: tuple[str, ...], rng: np.random.Generator, *,
+             ar_paper: float = AR_PAPER_DEFAULT,
+             noise_var: dict[str, float] | None = None) -> np.ndarray:
+    """What the sensors read (T, ny): :func:`simulate` from rest, then
+    :func:`add_sensor_noise` on the ``sensors`` columns, both drawing from ``rng``."""
+    run = simulate(theta_t, speed_mps_t, fs_hz, rng, ar_paper=ar_paper)
+    return add_sensor_noise(select(run.outputs, sensors), sensors, rng, noise_var)
+
+
 def select(outputs: np.ndarray, sensors: tuple[str, ...]) -> np.ndarray:
     """Columns of a (T, 5) SENSORS_5 array for a sensor subset, shape (T, len(sensors))."""
     return outputs[:, [SENSORS_5.index(s) for s in sensors]]

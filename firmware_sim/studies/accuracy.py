@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.truth import add_sensor_noise, select, simulate
+from firmware_sim.truth import measured
 from gateway.estimator.monitor import MonitorConfig, cusum
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.model.vehicle import (
@@ -59,10 +59,8 @@ RESEED_OFFSET = 100
 def make_data(theta_t: np.ndarray, sensors: int, seed: int,
               ar_paper: float = AR_PAPER_DEFAULT) -> np.ndarray:
     """Noisy measurements (T, ny) of the linear truth at 1 kHz, 42.5 m/s."""
-    rng = np.random.default_rng(1000 + seed)
-    run = simulate(theta_t, np.full(len(theta_t), V_MPS), FS_HZ, rng, ar_paper=ar_paper)
-    names = sensor_set(sensors)
-    return add_sensor_noise(select(run.outputs, names), names, rng)
+    return measured(theta_t, np.full(len(theta_t), V_MPS), FS_HZ, sensor_set(sensors),
+                    np.random.default_rng(1000 + seed), ar_paper=ar_paper)
 
 
 def run_filter(Y: np.ndarray, cfg: RBPFConfig, every: int = 100,

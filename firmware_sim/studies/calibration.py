@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
-from firmware_sim.truth import add_sensor_noise, select, simulate
+from firmware_sim.truth import measured
 from gateway.estimator.rbpf import RBPF
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
@@ -52,11 +52,9 @@ SEED_OFFSET = {"paper": 3000, "box": 4000}
 def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float) -> np.ndarray:
     """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz, 42.5 m/s."""
     n = int(round(seconds * FS_HZ))
-    rng = np.random.default_rng(data_seed)
-    truth = simulate(np.repeat(np.asarray(theta, dtype=float)[None], n, 0),
-                     np.full(n, V_MPS), FS_HZ, rng)
-    names = sensor_set(sensors)
-    return add_sensor_noise(select(truth.outputs, names), names, rng)
+    return measured(np.repeat(np.asarray(theta, dtype=float)[None], n, 0),
+                    np.full(n, V_MPS), FS_HZ, sensor_set(sensors),
+                    np.random.default_rng(data_seed))
 
 
 def box_theta(seed: int) -> np.ndarray:
@@ -113,10 +111,10 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (study, option, sensors, t_s): records; per parameter the share with |z| <= 2, the
     largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
-    out = []
     def key_of(r: dict[str, Any]) -> tuple[str, bool, int, float]:
         return r["study"], bool(r.get("moves_drop_null", False)), r["sensors"], r["t_s"]
 
+    out = []
     for key in sorted({key_of(r) for r in rows}):
         case = [r for r in rows if key_of(r) == key]
         z = np.abs(np.array([r["z"] for r in case]))

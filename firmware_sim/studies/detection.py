@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.truth import SENSOR_NOISE_VAR, add_sensor_noise, select, simulate
+from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy
 from gateway.config import EstimatorConfig
 from gateway.estimator.rbpf import RBPF
@@ -58,11 +58,9 @@ def fault_data(parameter: int | None, factor: float, sensors: int, seed: int,
     th = np.repeat(THETA_NOMINAL.as_array()[None], n, 0)
     if parameter is not None:
         th[int(round(fault_at_s * FS_HZ)):, parameter] *= factor
-    rng = np.random.default_rng(DATA_SEED_OFFSET + seed)
-    run = simulate(th, np.full(n, V_MPS), FS_HZ, rng)
-    names = sensor_set(sensors)
     var = {k: v * noise_scale**2 for k, v in SENSOR_NOISE_VAR.items()}
-    return th, add_sensor_noise(select(run.outputs, names), names, rng, var)
+    return th, measured(th, np.full(n, V_MPS), FS_HZ, sensor_set(sensors),
+                        np.random.default_rng(DATA_SEED_OFFSET + seed), noise_var=var)
 
 
 def service_filter(sensors: int, seed: int, particles: int, mode: str) -> RBPF:

@@ -26,7 +26,7 @@ import numba
 import numpy as np
 
 from firmware_sim.studies.naive import naive_steps
-from firmware_sim.truth import add_sensor_noise, select, simulate
+from firmware_sim.truth import measured
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.model.vehicle import (
     THETA_SEC42,
@@ -97,11 +97,8 @@ def bench_data(seconds: float, seed: int) -> BenchData:
     The truth and the sensor noise come from one generator seeded ``seed``.
     """
     n = max(2, int(round(seconds * FS_HZ)))
-    rng = np.random.default_rng(seed)
-    truth = simulate(np.repeat(THETA_SEC42.as_array()[None], n, 0), np.full(n, V_MPS), FS_HZ,
-                     rng)
-    sensors = sensor_set(SENSORS)
-    y = add_sensor_noise(select(truth.outputs, sensors), sensors, rng)
+    y = measured(np.repeat(THETA_SEC42.as_array()[None], n, 0), np.full(n, V_MPS), FS_HZ,
+                 sensor_set(SENSORS), np.random.default_rng(seed))
     samples = tuple(Sample(t_s=k / FS_HZ, values=y[k], speed_mps=V_MPS) for k in range(n))
     return BenchData(fs_hz=FS_HZ, speed_mps=V_MPS, y=y, samples=samples)
 

@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (444): the watch, confirm and locate phases share one state vector and
+Over 400 lines (435): the watch, confirm and locate phases share one state vector and
 one set of filters; splitting them would pass that state around.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
@@ -320,21 +320,12 @@ class FaultBank:
                         self._gains, LL, np.empty_like(LL))
 
     def _state_of(self, filt: int) -> np.ndarray:
-        """Filter ``filt``'s state (16,) without its component along the null vector of
-        its own theta (:meth:`_neutral`)."""
-        x = self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES].copy()
-        return self._neutral(x, self.hypotheses()[filt])
-
-    def _neutral(self, x: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """``x`` (16,) less its component along the null vector v0 of ``theta``.
-
-        Under theta the static yawed set-up v0 is unobservable, so that component of a
-        filter's state is arbitrary; under another conicity it is no longer static and
-        would predict a transient the data never had. Every filter that takes over a
-        state from a filter at another theta takes it without that component.
-        """
+        """Filter ``filt``'s state (16,) less its component along the static-yaw null
+        vector of its own theta: the state is taken over by filters at other thetas
+        (:func:`gateway.estimator.steady.without_null`)."""
         assert self._model is not None
-        v0 = self._model[1](np.asarray(theta, dtype=float)[None, :N_THETA])
+        x = self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES]
+        v0 = self._model[1](self.hypotheses()[filt:filt + 1, :N_THETA])
         return without_null(x[None], v0)[0]
 
     def _locate(self, best: int, t_s: float) -> None:

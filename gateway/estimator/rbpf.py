@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (707): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines (708): the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor and fault bank
 are already separate modules.
 
@@ -175,7 +175,8 @@ class RBPF:
         self._v_ref = float(v_mps)
         self._H = np.ascontiguousarray(self.coords.output(self.sensors, v_mps))
         self._disc = DiscreteBatch(self.coords, v_mps, 1.0 / cfg.fs_hz)
-        self._null = NullVectors(self.coords.terms(v_mps), cfg.nominal.as_array())
+        if self._fast or self._bank is not None or cfg.moves_drop_null:
+            self._null = NullVectors(self.coords.terms(v_mps), cfg.nominal.as_array())
         if self._bank is not None:
             self._bank.set_model(self._disc, self._null, self._H, self._r,
                                  float(track_intensity(1.0, v_mps)))
