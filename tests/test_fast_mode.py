@@ -228,19 +228,22 @@ def test_fast_mode_recovers_the_truth_like_the_exact_mode(seed: int) -> None:
     assert (gap < 0.5 * np.array(out["exact"].std) + 0.005 * NOMINAL).all(), gap
 
 
-@pytest.mark.parametrize("n_sensors", [3, 5])
-def test_blocks_of_samples_equal_stepping_one_by_one(n_sensors: int) -> None:
-    """RBPF.run steps uneventful runs of samples in one compiled call; stepping every
-    sample through step() gives the same floats: estimates, resamples, detections,
-    including a gap of predict-only samples, one with a missing sensor and a speed step."""
+@pytest.mark.parametrize(("mode", "n_sensors"), [("fast", 3), ("fast", 5), ("exact", 3)])
+def test_blocks_of_samples_equal_stepping_one_by_one(mode: str, n_sensors: int) -> None:
+    """RBPF.run steps uneventful runs of samples in one compiled call (the steady kernel,
+    or the exact one in exact mode and fast mode's warm-up); stepping every sample
+    through step() gives the same floats: estimates, resamples, detections, the fault
+    bank's start and the whole filter state at the end (its checkpoint), including a gap
+    of predict-only samples, one with a missing sensor and a speed step."""
     Y = _outputs(4000, n_sensors, seed=8)
     S = _samples(Y)
-    S[2600] = Sample(S[2600].t_s, np.where(np.arange(n_sensors) == 1, np.nan, Y[2600]), V_MPS)
+    for k in (2600, 3300):        # the second stops the running fault bank, which restarts
+        S[k] = Sample(S[k].t_s, np.where(np.arange(n_sensors) == 1, np.nan, Y[k]), V_MPS)
     for k in range(3000, 3050):
         S[k] = Sample(S[k].t_s, Y[k], V_MPS, False)
     for k in range(3500, 4000):
         S[k] = Sample(S[k].t_s, Y[k], V_MPS * 1.01)
-    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=200, sensors=n_sensors, seed=3, mode="fast",
+    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=200, sensors=n_sensors, seed=3, mode=mode,
                      fast_warmup_s=0.5)
     a = RBPF(cfg).run(S, output_every=37)
     one = RBPF(cfg)
@@ -251,3 +254,5 @@ def test_blocks_of_samples_equal_stepping_one_by_one(n_sensors: int) -> None:
     twin.run(S, output_every=37)
     assert twin.n_resamples == one.n_resamples > 0
     assert twin.n_steps == one.n_steps == len(S)
+    assert twin.checkpoint() == one.checkpoint()
+    assert twin._bank is not None and one._bank is not None and one._bank.active

@@ -22,6 +22,8 @@ No I/O; numba kernel over chunks with ``prange`` (both cores).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from gateway.estimator.lanecode import LANES, block_product, compile_kernel, stmt
@@ -36,19 +38,56 @@ _LOG_2PI = float(np.log(2 * np.pi))
 
 
 def _kf_source(n: int) -> list[str]:
+    """The one-sample kernel ``kf_step``: header, per-chunk set-up, then the step."""
+    return ["def kf_step(X, P, F, Q, H, r, y, use, P0, ll, nis, dead):",
+            "    nch = X.shape[0]",
+            "    ny = H.shape[0]"] + _chunk_lines(n) + _step_lines(n)
+
+
+def _chunk_lines(n: int) -> list[str]:
+    """The loop over chunks and each chunk's scratch arrays and views."""
+    C = LANES
+    return ["    for ch in prange(nch):",
+            f"        T = np.empty({n * n * C})",
+            f"        xn = np.empty({n * C})",
+            f"        ph = np.empty({n * C})",
+            "        Fc = F[ch]",
+            "        Pc = P[ch]",
+            "        Qc = Q[ch]",
+            "        Xc = X[ch]"]
+
+
+def _block_source(n: int) -> list[str]:
+    """The K-sample kernel ``kf_block``: the same step, each chunk taking all K samples
+    in turn (its P, Phi and Qd stay in cache), every sensor used or none (``full[t]``),
+    each sample's log-likelihood and NIS set in ``LL[t]``, ``NIS[t]``; a dead particle
+    gets -inf there. Bit-identical to K calls of ``kf_step``: the step's lines with the
+    sample's arrays renamed."""
+    C = LANES
+    rename = [(r"\by\[s\]", "Y[t, s]"), (r"\buse\[s\]", "full[t]"), (r"\bll\[", "LL[t, "),
+              (r"\bnis\[", "NIS[t, ")]
+    body = []
+    for line in _step_lines(n):
+        if line.strip() == "dead[p] = True":
+            continue
+        for a, b in rename:
+            line = re.sub(a, b, line)
+        body.append("    " + line)
+    return ["def kf_block(X, P, F, Q, H, r, Y, full, P0, LL, NIS):",
+            "    nch = X.shape[0]",
+            "    ny = H.shape[0]",
+            "    nt = Y.shape[0]"] + _chunk_lines(n) + [
+            "        for t in range(nt):",
+            f"            for l in range({C}):",
+            f"                LL[t, ch * {C} + l] = 0.0",
+            f"                NIS[t, ch * {C} + l] = 0.0"] + body
+
+
+def _step_lines(n: int) -> list[str]:
+    """One predict + update of chunk ``ch`` (8-space indent; sample ``y``, ``use``)."""
     C = LANES
     mat = f"(({{i}}) * {n} + ({{j}})) * {C}"
-    L = ["def kf_step(X, P, F, Q, H, r, y, use, P0, ll, nis, dead):",
-         "    nch = X.shape[0]",
-         "    ny = H.shape[0]",
-         "    for ch in prange(nch):",
-         f"        T = np.empty({n * n * C})",
-         f"        xn = np.empty({n * C})",
-         f"        ph = np.empty({n * C})",
-         "        Fc = F[ch]",
-         "        Pc = P[ch]",
-         "        Qc = Q[ch]",
-         "        Xc = X[ch]"]
+    L: list[str] = []
     bi, bj = BLOCK
     loops = [f"        for ib in range(0, {n}, {bi}):",
              f"            for jb in range(0, {n}, {bj}):"]
@@ -127,6 +166,10 @@ _SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1
 _kf_kernel = compile_kernel("kf_step", _kf_source(NZ), _SIG, module=__name__,
                             source_file=__file__,
                             parallel=True)
+_BLOCK_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], "
+              "f8[:, ::1], b1[::1], f8[:, ::1], f8[:, ::1], f8[:, ::1])")
+_block_kernel = compile_kernel("kf_block", _block_source(NZ), _BLOCK_SIG, module=__name__,
+                               source_file=__file__, parallel=True)
 
 
 def kf_step(x: np.ndarray, P: np.ndarray, phi: np.ndarray, qd: np.ndarray, H: np.ndarray,
@@ -139,6 +182,17 @@ def kf_step(x: np.ndarray, P: np.ndarray, phi: np.ndarray, qd: np.ndarray, H: np
     ``use`` (ny,) bool selecting the sensors to update with (none: predict only).
     """
     _kf_kernel(x, P, phi, qd, H, r, y, use, p0, ll, nis, dead)
+
+
+def kf_block(x: np.ndarray, P: np.ndarray, phi: np.ndarray, qd: np.ndarray,
+             H: np.ndarray, r: np.ndarray, Y: np.ndarray, full: np.ndarray, p0: np.ndarray,
+             LL: np.ndarray, NIS: np.ndarray) -> None:
+    """:func:`kf_step` for K samples in one call, in place: ``Y`` (K, ny) with ``full``
+    (K,) True where every sensor is used, False for predict-only samples; ``LL``, ``NIS``
+    (K, n_particles_padded) receive each sample's log-likelihood and NIS (set, not
+    added; -inf for a particle that failed, whose filter is reset as in ``kf_step``).
+    Bit-identical to K calls of :func:`kf_step`."""
+    _block_kernel(x, P, phi, qd, H, r, Y, full, p0, LL, NIS)
 
 
 def n_chunks(n_particles: int) -> int:

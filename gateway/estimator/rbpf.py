@@ -46,7 +46,7 @@ from gateway.estimator import checkpoint as ckpt
 from gateway.estimator import particles as pt
 from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.faultbank import Detection, FaultBank, FaultBankConfig
-from gateway.estimator.kalman import from_lanes, kf_step, n_chunks, to_lanes
+from gateway.estimator.kalman import from_lanes, kf_block, kf_step, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
 from gateway.estimator.rbpf_config import AR_NAME, RBPFConfig
@@ -370,9 +370,9 @@ class RBPF:
         """Feed samples; returns an estimate every ``output_every`` samples (and the last).
 
         Same filter evolution as calling :meth:`step` on each sample; only the outputs
-        in between are not summarised. Default: ``config.output_every``. In fast mode's
-        steady phase, runs of uneventful samples (every sensor or none, speed in band,
-        no resampling, no alarm) go through one compiled call (:meth:`_run_block`),
+        in between are not summarised. Default: ``config.output_every``. Once the
+        filters have started, runs of uneventful samples (every sensor or none, speed in
+        band, no resampling, no alarm) go through one compiled call (:meth:`_run_block`),
         bit-identical to stepping them one by one.
         """
         every = self.config.output_every if output_every is None else int(output_every)
@@ -385,7 +385,7 @@ class RBPF:
         while window := list(itertools.islice(source, min(every - k % every, MAX_WINDOW))):
             j = 0
             while j < len(window):
-                took = self._run_block(window[j:]) if self._steady else 0
+                took = self._run_block(window[j:]) if self._blocks() else 0
                 if took:
                     j, k = j + took, k + took
                     if k % every == 0:
@@ -404,8 +404,15 @@ class RBPF:
     def _was_used(sample: Sample) -> bool:
         return bool(sample.update) and bool(np.isfinite(np.asarray(sample.values)).any())
 
+    def _blocks(self) -> bool:
+        """Whether :meth:`_run_block` may take the next samples: not while fast mode's
+        filters wait at their prior for their first data (the per-sample path starts
+        them)."""
+        return self._steady or not (self._fast and self._at_prior)
+
     def _run_block(self, samples: list[Sample]) -> int:
-        """Steady phase: step the leading uneventful samples in one compiled call.
+        """Step the leading uneventful samples in one compiled call: the steady kernel
+        (fast mode), or the exact one (exact mode, fast mode's warm-up).
 
         Returns how many were taken (0: the first needs the full per-sample path). A
         sample is eligible when its sensors are all used or none, its speed is in the
@@ -431,27 +438,31 @@ class RBPF:
             elif bool(smp.update) and fin.any():
                 k = j
                 break
+        warming = self._fast and not self._steady
+        if warming:                       # the block ends where the warm-up does
+            k = min(k, int(np.searchsorted(np.cumsum(full[:k]), self._warm_left)) + 1)
+        bank = self._bank
+        if bank is not None and not bank.active:  # ... and at the bank's next start check
+            k = min(k, self._until_bank_check(full[:k]))
         if k == 0:
             return 0
         Y, full = Y[:k], full[:k]
-        bank = self._bank
-        if bank is not None and not bank.active:
-            self._maybe_start_bank()
-        snap = None
+        snap, scanned = None, 0
         if bank is not None and bank.active:
             snap = bank.snapshot()
             det = bank.scan(Y, full, samples[0].t_s, 1.0 / cfg.fs_hz)
-            bank.rewind(snap)
+            scanned = k
             if det is not None:          # the detecting sample takes the per-sample path
                 k = bank.taken - 1
                 if k == 0:
+                    bank.rewind(snap)
                     return 0
                 Y, full = Y[:k], full[:k]
         m = cfg.n_particles
         width = self._nch * LANES
         LL, NIS = np.empty((k, width)), np.empty((k, width))
-        x0 = self._X.copy()
-        kf_steady_block(self._X, self._phi, self._H, Y, full, self._gains, LL, NIS)
+        x0, p0 = self._X.copy(), (None if self._steady else self._P.copy())
+        self._step_block(Y, full, LL, NIS)
         mon = cfg.monitor
         ess_min = cfg.ess_threshold * m if cfg.resample else -1.0
         dof = np.where(full, self.ny, 0).astype(np.int64)
@@ -466,13 +477,16 @@ class RBPF:
                                             self.monitor_state)
         if took < k:                      # step the states again up to the event
             self._X = x0
+            if p0 is not None:
+                self._P = p0
             if took:
-                kf_steady_block(self._X, self._phi, self._H, Y[:took], full[:took],
-                                self._gains, LL[:took], NIS[:took])
-        if took:
-            if snap is not None:
-                assert bank is not None
+                self._step_block(Y[:took], full[:took], LL[:took], NIS[:took])
+        if snap is not None and took != scanned:   # the bank steps again up to the event
+            assert bank is not None
+            bank.rewind(snap)
+            if took:
                 bank.scan(Y[:took], full[:took], samples[0].t_s, 1.0 / cfg.fs_hz)
+        if took:
             self._data_since_start += int(full[:took].sum())
             self.logw = logw
             self._w_cache, self._w_of = w, logw
@@ -480,7 +494,36 @@ class RBPF:
             self.n_steps += took
             self.since_move += took
             self.updated_since_move += int(full[:took].sum())
+            if warming:
+                self._at_prior = False
+                self._warm_left -= int(full[:took].sum())
+                if self._warm_left <= 0:
+                    self._enter_steady()
+            if bank is not None and not bank.active:
+                self._maybe_start_bank()      # as after the block's last sample
         return took
+
+    def _until_bank_check(self, full: np.ndarray) -> int:
+        """Samples of a block with ``full`` (k,) up to and including the one after which
+        the per-sample path would next check whether to start the fault bank
+        (:meth:`_maybe_start_bank`: every 0.1 s once ``start_after_s`` of data has
+        passed); k if none."""
+        cfg = self.config
+        assert cfg.faults is not None
+        need = cfg.faults.start_after_s * cfg.fs_hz - self._data_since_start
+        due = (np.arange(len(full)) >= self._bank_check_at - self.n_steps - 1) \
+            & (np.cumsum(full) >= need)
+        return int(np.argmax(due)) + 1 if due.any() else len(full)
+
+    def _step_block(self, Y: np.ndarray, full: np.ndarray, LL: np.ndarray, NIS: np.ndarray
+                    ) -> None:
+        """Step every filter over ``Y`` (k, ny) with ``full`` (k,), writing ``LL``, ``NIS``
+        (k, padded m): the steady kernel or the exact recursion."""
+        if self._steady:
+            kf_steady_block(self._X, self._phi, self._H, Y, full, self._gains, LL, NIS)
+        else:
+            kf_block(self._X, self._P, self._phi, self._qd, self._H, self._r, Y, full,
+                     self._P0, LL, NIS)
 
     # ------------------------------------------------------- resampling etc.
     def _floor_log(self) -> np.ndarray:

@@ -47,7 +47,9 @@ class RBPFConfig:
     speed-band change, :mod:`gateway.estimator.steady`; the product's default);
     ``fast_warmup_s``: in fast mode, the exact recursion runs this long after every
     filter start (the prior's large P converges the states quickly; the steady gains
-    alone would take the slow mode's 8 s time constant);
+    alone would take the slow mode's 8 s time constant); 0.5 s is measured to give the
+    same accuracy at about twice the whole-run speed, but the campaigns behind the
+    product's figures use 2 s (docs/estimator.md "Start of every filter");
     ``moves_drop_null``: a moved particle keeps its ancestor's state less the component
     along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
     off by default until the fast-vs-exact, drift and accuracy campaigns are re-measured

@@ -59,6 +59,9 @@ from gateway.estimator.kalman import _LOG_2PI, from_lanes, to_lanes
 from gateway.estimator.lanecode import LANES, block_product, compile_kernel, stmt
 from gateway.model.coordinates import NZ
 
+BLOCK_ROWS = 8
+"""Rows of ``Phi x`` computed together in the steady step (16 vector accumulators with
+8 lanes: 8 was fastest of 2, 4, 8 and 16, measured 2026-11-25)."""
 MAX_ITER = 40
 """Doubling iterations before a particle is declared dead (2**40 samples)."""
 SMITH_ITER = 20
@@ -335,9 +338,22 @@ def _sda_source(n: int) -> list[str]:
     return L
 
 
-def _block_source(n: int) -> list[str]:
+def _block_source(n: int, rows: int = BLOCK_ROWS) -> list[str]:
     """The steady step for K samples at once: each chunk runs all of them in turn (its
-    state stays in cache), writing each sample's log-likelihood and NIS."""
+    state stays in cache), writing each sample's log-likelihood and NIS.
+
+    Written for instruction-level parallelism (each FMA chain used to wait on the one
+    before it: 4 cycles a step): ``Phi x`` takes ``rows`` rows at once (2 * rows
+    independent vector accumulators), each row block feeds every sensor's innovation
+    ``y_s - h_s Phi x`` as soon as it is done, and the sequential updates are replayed
+    through the cross terms ``h_s g_s2`` (s2 < s, computed once per call)::
+
+        e_s = y_s - h_s Phi x - sum_{s2 < s} (h_s g_s2) e_s2 / S_s2
+
+    the same algebra as updating ``x`` after each sensor, to rounding; ``x`` then takes
+    every sensor's correction at once. 2.5-3.5x the single-chain kernel (measured
+    2026-11-25, m = 1000, 3 and 5 sensors).
+    """
     C = LANES
     L = ["def kf_steady_block(X, F, H, Y, full, Gs, Ss, c0, LL, NIS):",
          "    nch = X.shape[0]",
@@ -345,34 +361,62 @@ def _block_source(n: int) -> list[str]:
          "    nt = Y.shape[0]",
          "    for ch in prange(nch):",
          f"        xn = np.empty({n * C})",
+         f"        E = np.empty(ny * {C})",
+         f"        Et = np.empty(ny * {C})",
+         f"        Si = np.empty(ny * {C})",
+         f"        cc = np.zeros(ny * ny * {C})",
          "        Fc = F[ch]",
          "        Xc = X[ch]",
-         "        for t in range(nt):",
-         f"            for i in range({n}):"]
-    L += stmt(4, "xs_{l} = 0.0")
+         "        Gc = Gs[ch]",
+         # cross terms c[s, s2] = h_s . g_s2 / S_s2 (s2 < s), and 1 / S_s
+         "        for s in range(ny):"]
+    L += stmt(3, f"Si[s * {C} + {{l}}] = 1.0 / Ss[ch, s * {C} + {{l}}]")
+    L += ["            for s2 in range(s):"]
+    L += stmt(4, "a_{l} = 0.0")
+    L += [f"                for k in range({n}):", "                    hk = H[s, k]"]
+    L += stmt(5, f"a_{{l}} += hk * Gc[(s2 * {n} + k) * {C} + {{l}}]")
+    L += stmt(4, f"cc[(s * ny + s2) * {C} + {{l}}] = a_{{l}}")
+    L += ["        for t in range(nt):",
+          "            ft = full[t]",
+          "            if ft:",
+          "                for s in range(ny):"]
+    L += stmt(5, f"E[s * {C} + {{l}}] = Y[t, s]")
+    L += [f"            for ib in range(0, {n}, {rows}):"]
+    for p in range(rows):
+        L += stmt(4, f"a{p}_{{l}} = 0.0")
     L += [f"                for k in range({n}):"]
-    L += stmt(5, f"xs_{{l}} += Fc[(i * {n} + k) * {C} + {{l}}] * Xc[k * {C} + {{l}}]")
-    L += stmt(4, f"xn[i * {C} + {{l}}] = xs_{{l}}")
+    L += stmt(5, f"w_{{l}} = Xc[k * {C} + {{l}}]")
+    for p in range(rows):
+        L += stmt(5, f"a{p}_{{l}} += Fc[((ib + {p}) * {n} + k) * {C} + {{l}}] * w_{{l}}")
+    for p in range(rows):
+        L += stmt(4, f"xn[(ib + {p}) * {C} + {{l}}] = a{p}_{{l}}")
+    L += ["                if ft:", "                    for s in range(ny):"]
+    for p in range(rows):
+        L += [f"                        h{p} = H[s, ib + {p}]"]
+    L += stmt(6, f"E[s * {C} + {{l}}] -= " + " + ".join(f"h{p} * a{p}_{{l}}" for p in range(rows)))
     L += stmt(3, "q_{l} = 0.0")
-    L += ["            if full[t]:", "                for s in range(ny):"]
-    L += stmt(5, "e_{l} = Y[t, s]")
-    L += [f"                    for k in range({n}):", "                        hk = H[s, k]"]
-    L += stmt(6, f"e_{{l}} -= hk * xn[k * {C} + {{l}}]")
-    L += stmt(5, f"g_{{l}} = 1.0 / Ss[ch, s * {C} + {{l}}]")
+    L += ["            if ft:", "                for s in range(ny):"]
+    L += stmt(5, f"e_{{l}} = E[s * {C} + {{l}}]")
+    L += ["                    for s2 in range(s):"]
+    L += stmt(6, f"e_{{l}} -= cc[(s * ny + s2) * {C} + {{l}}] * Et[s2 * {C} + {{l}}]")
+    L += stmt(5, f"g_{{l}} = Si[s * {C} + {{l}}]")
     L += stmt(5, "q_{l} += e_{l} * e_{l} * g_{l}")
-    L += stmt(5, "e_{l} = e_{l} * g_{l}")
-    L += [f"                    for i in range({n}):"]
-    L += stmt(6, f"xn[i * {C} + {{l}}] += Gs[ch, (s * {n} + i) * {C} + {{l}}] * e_{{l}}")
+    L += stmt(5, f"Et[s * {C} + {{l}}] = e_{{l}} * g_{{l}}")
+    L += [f"                for i in range({n}):"]
+    L += stmt(5, f"b_{{l}} = xn[i * {C} + {{l}}]")
+    L += ["                    for s in range(ny):"]
+    L += stmt(6, f"b_{{l}} += Gc[(s * {n} + i) * {C} + {{l}}] * Et[s * {C} + {{l}}]")
+    L += stmt(5, f"xn[i * {C} + {{l}}] = b_{{l}}")
     for lane in range(C):
-        p = f"ch * {C} + {lane}"
-        L += ["            if full[t]:",
-              f"                LL[t, {p}] = 0.0 - 0.5 * (c0[{p}] + q_{lane})",
-              f"                NIS[t, {p}] = q_{lane}",
+        at = f"ch * {C} + {lane}"
+        L += ["            if ft:",
+              f"                LL[t, {at}] = 0.0 - 0.5 * (c0[{at}] + q_{lane})",
+              f"                NIS[t, {at}] = q_{lane}",
               "            else:",
-              f"                LL[t, {p}] = 0.0",
-              f"                NIS[t, {p}] = 0.0",
-              f"            if c0[{p}] == np.inf:",
-              f"                LL[t, {p}] = -np.inf",
+              f"                LL[t, {at}] = 0.0",
+              f"                NIS[t, {at}] = 0.0",
+              f"            if c0[{at}] == np.inf:",
+              f"                LL[t, {at}] = -np.inf",
               f"                for i in range({n}):",
               f"                    xn[i * {C} + {lane}] = 0.0"]
     L += [f"            for i in range({n * C}):", "                Xc[i] = xn[i]"]
