@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (708): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines (756): the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor and fault bank
 are already separate modules.
 
@@ -237,9 +237,17 @@ class RBPF:
         ``fast_warmup_s`` of data score their start-up transient with the converged
         innovation variances, which favours the wrong particles (docs/estimator.md,
         "Start of every filter"). A sample with only some sensors starts it again."""
-        if bool(use.any()):
+        if bool(use.any()) and not bool(use.all()):
             self._at_prior = False
-            self._warm_left = self._warm_left - 1 if bool(use.all()) else self._warm_steps()
+            self._warm_left = self._warm_steps()
+        self._warmed(int(use.all()))
+
+    def _warmed(self, n_full: int) -> None:
+        """``n_full`` more samples with every sensor have passed the warm-up (a sample, or
+        a block); the steady gains take over once it is done."""
+        if n_full:
+            self._at_prior = False
+            self._warm_left -= n_full
         if self._warm_left <= 0:
             self._enter_steady()
 
@@ -495,10 +503,7 @@ class RBPF:
             self.since_move += took
             self.updated_since_move += int(full[:took].sum())
             if warming:
-                self._at_prior = False
-                self._warm_left -= int(full[:took].sum())
-                if self._warm_left <= 0:
-                    self._enter_steady()
+                self._warmed(int(full[:took].sum()))
             if bank is not None and not bank.active:
                 self._maybe_start_bank()      # as after the block's last sample
         return took
