@@ -26,6 +26,8 @@ echo "== mypy"
 .venv/bin/mypy
 echo "== import layers (lint-imports: [tool.importlinter] in pyproject.toml)"
 .venv/bin/lint-imports --no-cache
+echo "== estimator kernels into numba's cache, one per core (python -m gateway.estimator.precompile)"
+.venv/bin/python -m gateway.estimator.precompile
 echo "== pytest"
 .venv/bin/python -m pytest "$@"
 

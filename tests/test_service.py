@@ -241,10 +241,13 @@ def test_live_estimates_reach_the_estimator_accuracy_on_the_paper_scenario(tmp_p
         # parameter estimates stay put
         assert _wait(lambda: _predicting_only(svc), 90)
         time.sleep(0.5)                               # the last 10 Hz frames go out
+        stats = svc.pipeline.stats()
     truth = {"GW_EstCsy": 20e3, "GW_EstCsay": 3000e3, "GW_EstConicity": 0.15}
     for message, value in truth.items():
         mean = _last(run, message, f"{message}_Mean")
-        assert abs(mean / value - 1) < 0.10, (message, mean, value)
+        # the pipeline's counters say whether the worker kept up (samples dropped at its
+        # queue leave gaps the filter bridges by prediction: less data, wider posterior)
+        assert abs(mean / value - 1) < 0.10, (message, mean, value, stats)
 
 
 def _predicting_only(svc: Service) -> bool:

@@ -19,7 +19,9 @@ count are set once per process by :mod:`gateway.estimator.threads`, not here.
 Compilation: the source is compiled with this package's file name and a name that
 carries a hash of the generated text, so numba's on-disk cache works and is
 invalidated whenever the generated code changes. SLP vectorisation is switched on only
-while these kernels compile (``numba.config.SLP_VECTORIZE``), never globally.
+while these kernels compile (``numba.config.SLP_VECTORIZE``), never globally. A kernel
+compiles on its first call, not at import (:class:`Kernel`), so that
+:mod:`gateway.estimator.precompile` can compile them in parallel processes.
 """
 
 from __future__ import annotations
@@ -109,10 +111,35 @@ def _slp_enabled() -> Iterator[None]:
         cfg.SLP_VECTORIZE = saved
 
 
+class Kernel:
+    """A generated kernel, compiled (or loaded from numba's cache) on its first call or by
+    :meth:`compile`; :data:`KERNELS` lists every one by name."""
+
+    def __init__(self, name: str, build: Callable[[], Callable[..., Any]]) -> None:
+        self.name = name
+        self._build = build
+        self._func: Callable[..., Any] | None = None
+
+    def compile(self) -> Callable[..., Any]:
+        """The compiled function (compiled or loaded now if not yet)."""
+        if self._func is None:
+            self._func = self._build()
+        return self._func
+
+    def __call__(self, *args: Any) -> Any:
+        return (self._func or self.compile())(*args)
+
+
+KERNELS: dict[str, Kernel] = {}
+"""Every kernel made by :func:`compile_kernel` in this process, by ``module.name``."""
+
+
 def compile_kernel(name: str, lines: list[str], signature: str, *, module: str,
                    source_file: str, parallel: bool,
-                   env: dict[str, Any] | None = None) -> Callable[..., Any]:
-    """Compile generated source ``lines`` (a ``def name(...)``) with numba, cached on disk.
+                   env: dict[str, Any] | None = None) -> Kernel:
+    """Generated source ``lines`` (a ``def name(...)``) as a :class:`Kernel`, which numba
+    compiles (cached on disk) on its first call, not at import: so that
+    :mod:`gateway.estimator.precompile` can compile the kernels in parallel processes.
 
     The function gets a name suffixed with a hash of its source, and ``source_file`` as
     its file name, so numba's cache keys on both; ``module`` is the importable module
@@ -123,10 +150,22 @@ def compile_kernel(name: str, lines: list[str], signature: str, *, module: str,
     digest = hashlib.sha1(text.encode()).hexdigest()[:12]
     unique = f"{name}_{digest}"
     text = text.replace(f"def {name}(", f"def {unique}(", 1)
-    namespace: dict[str, Any] = {"np": np, "prange": numba.prange, "__name__": module}
-    namespace.update(env or {})
-    exec(compile(text, source_file, "exec"), namespace)  # noqa: S102 - generated, no input
-    func = namespace[unique]
-    with _slp_enabled():
-        return numba.njit(signature, parallel=parallel, cache=True, fastmath={"contract"},
-                          nogil=True)(func)
+
+    def build() -> Callable[..., Any]:
+        namespace: dict[str, Any] = {"np": np, "prange": numba.prange, "__name__": module}
+        namespace.update(env or {})
+        exec(compile(text, source_file, "exec"), namespace)  # noqa: S102 - generated, no input
+        func = namespace[unique]
+        with _slp_enabled():
+            return numba.njit(signature, parallel=parallel, cache=True, fastmath={"contract"},
+                              nogil=True)(func)
+
+    kernel = Kernel(f"{module}.{name}", build)
+    KERNELS[kernel.name] = kernel
+    return kernel
+
+
+def compile_all() -> None:
+    """Compile (or load from the cache) every kernel of :data:`KERNELS`."""
+    for kernel in KERNELS.values():
+        kernel.compile()

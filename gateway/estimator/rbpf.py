@@ -79,6 +79,14 @@ SUBSET_STEADY_S = 0.02
 steady P- of the full set; a longer outage hands over to the exact recursion."""
 MAX_WINDOW = 4096
 """Samples :meth:`RBPF.run` holds at once (outputs further apart are read in pieces)."""
+BLOCK_MIN = 16
+BLOCK_MAX = 1024
+"""Samples one compiled block may take: BLOCK_MIN after an event, doubling up to
+BLOCK_MAX while none comes. A block steps all its samples before the weights loop finds
+the first event (a resample, an alarm), then steps again up to it; in the start-up
+contraction, when exact mode resamples every few dozen samples, an unbounded block
+stepped a whole 4096-sample window to keep 30 of them (10 ms per sample instead of
+1). Block lengths change no result (:meth:`RBPF.run` equals :meth:`RBPF.step`)."""
 PRIOR_SAMPLES = 2**13
 """The state prior is the covariance this many samples after a start from rest."""
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
@@ -112,6 +120,7 @@ class RBPF:
         self._w_cache = np.zeros(m)
         self._data_since_start = 0
         self._bank_check_at = 0
+        self._block_len = BLOCK_MIN
         self._bank = (FaultBank(config.faults, len(config.names), config.fs_hz, config.ar_paper)
                       if config.faults is not None else None)
         self.reset(rng if rng is not None else np.random.default_rng(config.seed))
@@ -430,6 +439,7 @@ class RBPF:
         are stepped again up to there from a copy.
         """
         cfg = self.config
+        samples = samples[:self._block_len]
         k = len(samples)
         Y = np.zeros((k, self.ny))
         full = np.zeros(k, dtype=bool)
@@ -483,6 +493,7 @@ class RBPF:
                                             True, dof, mon.block_len, mon.k_sigma,
                                             mon.h_sigma, mon.warmup_blocks, mon.learn_blocks,
                                             self.monitor_state)
+        self._block_len = BLOCK_MIN if took < k else min(2 * self._block_len, BLOCK_MAX)
         if took < k:                      # step the states again up to the event
             self._X = x0
             if p0 is not None:

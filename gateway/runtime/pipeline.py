@@ -50,11 +50,15 @@ def restore_estimator(blob: bytes) -> Estimator:
 
 def warm_estimator(numba_threads: int) -> None:
     """A worker process's start: numba's global settings (once, here), then import the
-    estimator and load its compiled kernels (so a spare worker waits warm)."""
+    estimator and load its compiled kernels (so a spare worker waits warm; on a cold
+    cache this compiles them: minutes, see :mod:`gateway.estimator.precompile`)."""
     from gateway.estimator.threads import configure
 
     configure(numba_threads)
-    import gateway.estimator.rbpf  # noqa: F401
+    import gateway.estimator.rbpf  # noqa: F401  (defines the kernels)
+    from gateway.estimator.lanecode import compile_all
+
+    compile_all()
 
 
 def worker_settings(cfg: Config) -> WorkerSettings:

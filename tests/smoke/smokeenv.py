@@ -70,4 +70,10 @@ def install(base: Path) -> Installed:
     _pip(venv / "bin" / "python", str(wheel))
     work = base / "work"
     work.mkdir()
-    return Installed(venv=venv, wheel=wheel, work=work)
+    inst = Installed(venv=venv, wheel=wheel, work=work)
+    # what the README tells an integrator to run once after installing: the estimator's
+    # kernels compiled into the fresh venv's numba cache, one per core (minutes)
+    proc = inst.run([inst.python, "-m", "gateway.estimator.precompile"], timeout_s=1800)
+    assert proc.returncode == 0 and "kernels ready" in proc.stdout, \
+        f"precompile failed:\n{proc.stdout}\n{proc.stderr[-3000:]}"
+    return inst

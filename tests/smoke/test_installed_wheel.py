@@ -100,9 +100,8 @@ print(json.dumps({"file": gateway.__file__, "n": len(names), "needs_extra": need
 def test_every_installed_module_imports(installed: Installed):
     """Every module of the wheel imports in the plain (vehicle) install; only modules that
     need an optional extra (``fleet``) may fail, and only on that extra's packages."""
-    # the first import of the estimator compiles its kernels into the fresh venv's numba
-    # cache (large generated DARE source): 3-4 min on an idle host, over 5 min on a host
-    # half as fast (2026-11-24), so this call may take longer than the default
+    # importing compiles no kernel (the install fixture ran precompile already; a kernel
+    # compiles on its first call), but a slow host may still take longer than the default
     got = json.loads(_ok(installed.run([installed.python, "-c", IMPORT_ALL],
                                        timeout_s=1200)))
     assert Path(got["file"]).is_relative_to(installed.venv), got

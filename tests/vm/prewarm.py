@@ -41,7 +41,15 @@ def gateway_service() -> None:
     e2e_traffic.warm(Path(data) if data else None)
 
 
-WARMUPS: tuple[Callable[[], None], ...] = (simulator, gateway_service)
+def estimator_kernels() -> None:
+    """Every estimator kernel, one per core (gateway.estimator.precompile), before the
+    paths below load them."""
+    from gateway.estimator.precompile import compile_parallel
+
+    compile_parallel(len(os.sched_getaffinity(0)))
+
+
+WARMUPS: tuple[Callable[[], None], ...] = (estimator_kernels, simulator, gateway_service)
 
 
 def main() -> int:
