@@ -15,11 +15,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import multiprocessing
-import os
 import sys
 import time
 
 from gateway.estimator.lanecode import KERNELS
+from gateway.estimator.threads import available_cores
 
 MODULES = ("gateway.estimator.steady", "gateway.estimator.kalman",
            "gateway.estimator.batch_expm")
@@ -52,8 +52,7 @@ def compile_parallel(jobs: int) -> list[tuple[str, float]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
-        else (os.cpu_count() or 1)
+    cores = available_cores()
     p = argparse.ArgumentParser(prog="python -m gateway.estimator.precompile",
                                 description=__doc__.splitlines()[0])
     p.add_argument("--jobs", type=int, default=cores,

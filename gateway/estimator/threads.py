@@ -15,6 +15,7 @@ at once: the estimator runs in one worker (process) at a time.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numba
@@ -23,6 +24,14 @@ from gateway.estimator.lanecode import LANES
 
 MIN_PARALLEL_CHUNKS = 16
 """Below this many lane chunks (``LANES`` particles each) one thread is faster."""
+
+
+def available_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:       # not on Linux
+        return os.cpu_count() or 1
 
 
 def max_threads() -> int:

@@ -9,13 +9,13 @@ to ``len(os.sched_getaffinity(0))``; with one worker everything runs in-process.
 from __future__ import annotations
 
 import multiprocessing
-import os
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
 from gateway.errors import InputError
+from gateway.estimator.threads import available_cores
 from gateway.identify.linalg import one_blas_thread
 from gateway.identify.misfit import TrackMisfit
 from gateway.identify.params import FreeSpace
@@ -80,14 +80,6 @@ def _value(u: np.ndarray) -> float:
 def _signals(u: np.ndarray) -> np.ndarray:
     assert _OBJECTIVE is not None
     return _OBJECTIVE.per_signal(u)
-
-
-def available_cores() -> int:
-    """Cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:       # not on Linux
-        return os.cpu_count() or 1
 
 
 class Evaluator:

@@ -45,8 +45,9 @@ def estimator_kernels() -> None:
     """Every estimator kernel, one per core (gateway.estimator.precompile), before the
     paths below load them."""
     from gateway.estimator.precompile import compile_parallel
+    from gateway.estimator.threads import available_cores
 
-    compile_parallel(len(os.sched_getaffinity(0)))
+    compile_parallel(available_cores())
 
 
 WARMUPS: tuple[Callable[[], None], ...] = (estimator_kernels, simulator, gateway_service)
