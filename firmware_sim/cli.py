@@ -58,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--track-roughness", type=config_value("estimator", "track_roughness"),
                    default=None,
                    help="Ar as printed in the paper (default 2 x 0.33e-3)")
+    p.add_argument("--noise-scale", type=real(0.0, 100.0, lo_open=True), default=1.0,
+                   help="sensor noise std relative to the paper's Qv (1; e.g. 1.4 for "
+                        "noisier sensors or another simulator's convention)")
     _add_target(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("play-csv", help="turn an interchange CSV into node frames")
@@ -123,7 +126,8 @@ def _simulation(args: argparse.Namespace) -> Simulation:
     if getattr(args, "track_roughness", None) is not None:
         kwargs["ar_paper"] = args.track_roughness
     cfg = SimConfig(duration_s=duration, seed=args.seed,
-                    nonlinear_dampers=getattr(args, "nonlinear_dampers", False), **kwargs)
+                    nonlinear_dampers=getattr(args, "nonlinear_dampers", False),
+                    noise_scale=getattr(args, "noise_scale", 1.0), **kwargs)
     return Simulation(scenario, cfg)
 
 

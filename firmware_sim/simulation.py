@@ -43,6 +43,8 @@ class SimConfig:
     t0_s: float = 0.0
     block_s: float = 1.0
     nodes: tuple[str, ...] = ("WSN", "BGN", "BDN", "VEH")
+    noise_scale: float = 1.0
+    """Sensor noise std relative to the paper's Qv (``SENSOR_NOISE_VAR``)."""
     second_sender: str | None = None
     """A second node sending the same message as this one (a masquerader with valid CRCs,
     its own clock, alive counter and SampleIdx ``second_sender_idx_offset`` ahead, values
@@ -148,7 +150,7 @@ class Simulation:
             if quantity in SENSORS_5:
                 col = SENSORS_5.index(quantity)
                 clean = np.interp(t_true, t_grid, outputs[:, col])
-                std = float(np.sqrt(SENSOR_NOISE_VAR[quantity]))
+                std = float(np.sqrt(SENSOR_NOISE_VAR[quantity])) * self.config.noise_scale
                 values[quantity] = (clean * self._gain.get(node.node, 1.0)
                                     + self._rng_noise.standard_normal(len(k)) * std)
             elif quantity == "speed":

@@ -68,6 +68,9 @@ class EstimatorConfig:
     ``drift_per_sqrt_s``: random-walk evolution of Csy, Csay and lambda (relative std per
     square root of second of updated data) so that the on-board filter follows a slow
     change; 0 is the paper's static-parameter filter (docs/estimator.md, "Drift").
+    ``sensor_noise``: ``"measured"`` tests the model's sensor noise variances against the
+    first 5 s of data and uses the measured ones where the data reject them
+    (:mod:`gateway.estimator.noisestart`); ``"model"`` keeps the paper's Qv.
     """
 
     particles: int = 1000
@@ -77,6 +80,7 @@ class EstimatorConfig:
     track_roughness: float = 2 * 0.33e-3
     estimate_track_roughness: bool = False
     drift_per_sqrt_s: float = 0.01
+    sensor_noise: str = "measured"
     output_rate_hz: float = 10.0
     checkpoint_interval_s: float = 5.0
     queue_samples: int = 5000
@@ -221,6 +225,7 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     # the estimator needs >= 2; 20 000 is 20x what 2 cores run in real time
     ("estimator", "particles"): Range(2, 20_000),
     ("estimator", "mode"): OneOf(("fast", "exact")),
+    ("estimator", "sensor_noise"): OneOf(("measured", "model")),
     ("estimator", "sensors"): OneOf((3, 5)),
     # numpy seeds are non-negative; 32 bits is plenty and fits every log and report
     ("estimator", "seed"): Range(0, 2**32 - 1),
@@ -415,6 +420,10 @@ def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
         if getattr(r, key) >= r.fs_hz / 2:
             raise fail("resampler", key, f"expected 0 (off) or a cut-off below fs_hz / 2 = "
                        f"{r.fs_hz / 2:g} Hz, got {getattr(r, key)!r}")
+        if getattr(r, key) and cfg.estimator.sensor_noise == "measured":
+            raise fail("estimator", "sensor_noise", f"expected \"model\" with the resampler's "
+                       f"{key} on (the filter removes the band the noise is measured in), "
+                       f"got \"measured\"")
     if cfg.estimator.output_rate_hz > r.fs_hz:
         raise fail("estimator", "output_rate_hz", f"expected at most [resampler] fs_hz "
                    f"({r.fs_hz:g}), got {cfg.estimator.output_rate_hz!r}")

@@ -12,7 +12,7 @@ read back as NaN (:func:`number`). Enums are written by name (``"ALARM"``, ``"RA
 
 - alert: ``{"seq", "t_s", "parameter", "severity", "state", "code", "value_rel",
   "message"}``;
-- estimate: ``{"t_s", "ess", "updated", "v_sy_mps", "v_say_mps", "params": {name:
+- estimate: ``{"t_s", "ess", "updated", "provisional", "v_sy_mps", "v_say_mps", "params": {name:
   {"mean", "std"}}}`` (:func:`params_json` is the ``params`` part alone).
 """
 
@@ -70,6 +70,7 @@ def params_json(est: Estimate) -> dict[str, dict[str, float | None]]:
 def estimate_json(est: Estimate) -> dict[str, Any]:
     """The JSON form of an estimate."""
     return {"t_s": finite(est.t_s), "ess": finite(est.ess), "updated": bool(est.updated),
-            "v_sy_mps": finite(est.v_sy_mps), "v_say_mps": finite(est.v_say_mps),
+            "provisional": bool(est.provisional), "v_sy_mps": finite(est.v_sy_mps),
+            "v_say_mps": finite(est.v_say_mps),
             "params": params_json(est)}
 

@@ -44,7 +44,10 @@ class Estimate:
     ``mean`` and ``std`` are in :data:`gateway.model.vehicle.PARAM_NAMES` order (N s/m, N s/m, -),
     plus Ar (paper units) as a 4th entry when it is estimated jointly.
     ``ess`` is the effective sample size; ``v_sy_mps``/``v_say_mps`` are the damper
-    operating velocities from the state estimates (paper Figs. 9-10).
+    operating velocities from the state estimates (paper Figs. 9-10). ``provisional``:
+    the estimator is still testing its model against the data (the sensor-noise test's
+    first 5 s, :mod:`gateway.estimator.noisestart`); the alert policy does not judge it,
+    and the estimate frame says Converging at best.
     """
 
     t_s: float
@@ -55,11 +58,53 @@ class Estimate:
     v_say_mps: float = float("nan")
     updated: bool = True
     names: tuple[str, ...] = field(default=PARAM_NAMES)
+    provisional: bool = False
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         """``{name: {"mean": m, "std": s}}`` for each parameter."""
         return {n: {"mean": m, "std": s}
                 for n, m, s in zip(self.names, self.mean, self.std, strict=True)}
+
+
+@dataclass(frozen=True)
+class NoiseCheck:
+    """The estimator's test of its sensor-noise variances against the data
+    (:mod:`gateway.estimator.noisestart`), per sensor (tuples in sensor-set order):
+    ``model_var`` assumed at the start (SI units^2); ``band_var`` the data's white-noise
+    variance in the band above the vehicle's dynamics, less ``signal_var``, the model's
+    own signal there; ``se_rel`` the test's relative standard error; ``used_var`` what
+    the filter uses from now on; ``replaced`` which sensors changed; ``t_s`` data time of
+    the test; ``note`` why nothing could be measured, or ''."""
+
+    sensors: tuple[str, ...]
+    model_var: tuple[float, ...]
+    band_var: tuple[float, ...]
+    signal_var: tuple[float, ...]
+    se_rel: tuple[float, ...]
+    used_var: tuple[float, ...]
+    replaced: tuple[bool, ...]
+    t_s: float
+    note: str = ""
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-able: one entry per sensor, and the test's time and note."""
+        per = {s: {"model_var": m, "band_var": b, "signal_var": g, "se_rel": e,
+                   "used_var": u, "replaced": r}
+               for s, m, b, g, e, u, r in zip(self.sensors, self.model_var, self.band_var,
+                                               self.signal_var, self.se_rel, self.used_var,
+                                               self.replaced, strict=True)}
+        return {"t_s": self.t_s, "note": self.note, "sensors": per}
+
+    def summary(self) -> str:
+        """One line for the log and the console."""
+        if self.note:
+            return f"sensor noise not measured ({self.note}); the model's is kept"
+        changed = [f"{s} {u / m:.2f} x" for s, u, m, r in zip(
+            self.sensors, self.used_var, self.model_var, self.replaced, strict=True) if r]
+        if not changed:
+            return "sensor noise agrees with the model"
+        return "sensor noise measured, the model's replaced: " + ", ".join(changed) + \
+            " (variance)"
 
 
 class Estimator(Protocol):
@@ -97,6 +142,10 @@ class Estimator(Protocol):
     def reset_parameter(self, index: int) -> None:
         """Baseline reset: parameter ``index`` (``PARAM_NAMES`` order) re-learns from
         its prior, the others keep what they learnt."""
+
+    def noise_check(self) -> NoiseCheck | None:
+        """The outcome of the sensor-noise test once made; None before it, or when the
+        estimator makes none."""
 
 
 class Sink(Protocol):

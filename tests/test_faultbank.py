@@ -12,6 +12,7 @@ import pytest
 from firmware_sim.studies.detection import FS_HZ, V_MPS, fault_data, fault_row, service_filter
 from gateway.errors import EstimatorError
 from gateway.estimator.faultbank import FaultBankConfig, _cusum_path
+from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.records import Sample
 
@@ -78,7 +79,10 @@ def test_healthy_data_raise_no_detection() -> None:
         _, Y = fault_data(None, 1.0, sensors, seed=13, seconds=30.0, fault_at_s=0.0)
         filt = service_filter(sensors, 13, 1000, "fast")
         filt.run(_samples(Y), output_every=100)
-        assert filt._bank is not None and filt._bank.active
+        assert isinstance(filt, NoiseCheckedStart) and filt.result is not None
+        assert not any(filt.result.replaced)          # the simulator's noise is the model's
+        bank = filt.inner._bank
+        assert bank is not None and bank.active
         assert filt.n_fault_detections == 0 and filt.n_detections == 0
 
 

@@ -97,7 +97,8 @@ def test_alert_from_json_refuses_malformed(bad, match):
 
 def test_estimate_form_is_strict_json():
     form = strict(jsonform.estimate_json(NAN_EST))
-    assert form == {"t_s": 1.5, "ess": None, "updated": False, "v_sy_mps": 0.01,
+    assert form == {"t_s": 1.5, "ess": None, "updated": False, "provisional": False,
+                    "v_sy_mps": 0.01,
                     "v_say_mps": None, "params": {
                         "csy_ns_per_m": {"mean": 40e3, "std": 1e3},
                         "csay_ns_per_m": {"mean": None, "std": 1e5},

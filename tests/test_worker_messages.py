@@ -148,7 +148,8 @@ def test_the_worker_is_told_the_grid_step_of_the_configuration():
 
 # ---------------------------------------------------------------- estimator
 def test_the_rbpf_is_an_estimator_through_the_pipelines_builder_and_restorer():
-    cfg = with_overrides(Config(), {"estimator.particles": 16, "estimator.sensors": 3})
+    cfg = with_overrides(Config(), {"estimator.particles": 16, "estimator.sensors": 3,
+                                    "estimator.sensor_noise": "model"})
     rbpf: Estimator = build_estimator(cfg.estimator, cfg.resampler.fs_hz)
     typed: Estimator = RBPF.restore(rbpf.checkpoint())     # mypy: RBPF satisfies it
     assert isinstance(rbpf, RBPF) and isinstance(typed, RBPF)

@@ -38,6 +38,7 @@ import numpy as np
 
 from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
 from firmware_sim.truth import measured
+from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
@@ -85,7 +86,8 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s))
     filt = service_filter(sensors, seed, particles, mode)
     if moves_drop_null:
-        filt = RBPF(replace(filt.config, moves_drop_null=True))
+        cfg = replace(filt.config, moves_drop_null=True)
+        filt = NoiseCheckedStart(cfg) if isinstance(filt, NoiseCheckedStart) else RBPF(cfg)
     est, found, _ = run(Y, filt)
     out = []
     for t in at_s:

@@ -36,6 +36,7 @@ import numpy as np
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy
 from gateway.config import EstimatorConfig
+from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
 from gateway.records import Sample
@@ -63,17 +64,23 @@ def fault_data(parameter: int | None, factor: float, sensors: int, seed: int,
                         np.random.default_rng(DATA_SEED_OFFSET + seed), noise_var=var)
 
 
-def service_filter(sensors: int, seed: int, particles: int, mode: str) -> RBPF:
-    """The filter the service builds from its defaults (drift, monitor, fault bank)."""
+Filter = RBPF | NoiseCheckedStart
+"""The service's filter: the RBPF, in its sensor-noise test or not."""
+
+
+def service_filter(sensors: int, seed: int, particles: int, mode: str,
+                   sensor_noise: str = "measured") -> Filter:
+    """The filter the service builds from its defaults (drift, monitor, fault bank, the
+    sensor-noise test)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
-                  mode=mode)
+                  mode=mode, sensor_noise=sensor_noise)
     filt = build_estimator(cfg, FS_HZ)
-    assert isinstance(filt, RBPF)
+    assert isinstance(filt, (RBPF, NoiseCheckedStart))
     return filt
 
 
-def run(Y: np.ndarray, filt: RBPF, every: int = 100
-        ) -> tuple[list[Any], list[tuple[float, str, float, float]], RBPF]:
+def run(Y: np.ndarray, filt: Filter, every: int = 100
+        ) -> tuple[list[Any], list[tuple[float, str, float, float]], Filter]:
     """Estimates every ``every`` samples and the bank's detections (decision time,
     parameter, located value relative to nominal, confirmation time)."""
     found: list[tuple[float, str, float, float]] = []
@@ -92,7 +99,15 @@ def run(Y: np.ndarray, filt: RBPF, every: int = 100
     return est, found, filt
 
 
-def _last(filt: RBPF) -> tuple[float, str, float, float]:
+def _noise_columns(filt: Filter) -> dict[str, Any]:
+    """The sensor-noise test's outcome: the variances used relative to the model's."""
+    res = filt.result if isinstance(filt, NoiseCheckedStart) else None
+    return {"sensor_noise": "measured" if isinstance(filt, NoiseCheckedStart) else "model",
+            "noise_used_rel": None if res is None else [
+                round(u / m, 3) for u, m in zip(res.used_var, res.model_var, strict=True)]}
+
+
+def _last(filt: Filter) -> tuple[float, str, float, float]:
     last = filt.last_fault()
     assert last is not None
     return last
@@ -106,11 +121,11 @@ def alerts(est: Sequence[Any]) -> list[tuple[float, str, str]]:
 
 
 def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
-              fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0
-              ) -> dict[str, Any]:
+              fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
+              sensor_noise: str = "measured") -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
     t0 = time.perf_counter()
-    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode))
+    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise))
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -123,7 +138,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     on_it = [t - fault_at_s for t, n, _ in raised if n == name and t > fault_at_s]
     alarm = [t - fault_at_s for t, n, sev in raised if n == name and sev == "ALARM"]
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
-            "noise_scale": noise_scale,
+            "noise_scale": noise_scale, **_noise_columns(filt),
             "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
             "confirmed_s": round(right[0][3] - fault_at_s, 3) if right else None,
             "detect_s": round(right[0][0] - fault_at_s, 3) if right else None,
@@ -145,19 +160,21 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
 
 
 def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode: str,
-                noise_scale: float = 1.0) -> dict[str, Any]:
+                noise_scale: float = 1.0, sensor_noise: str = "measured") -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
     t0 = time.perf_counter()
-    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode))
+    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
-            "noise_scale": noise_scale,
+            "noise_scale": noise_scale, **_noise_columns(filt),
             "particles": particles, "seconds": seconds, "detections": len(found),
             "alerts": len(alerts(est)),
             "detail": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
             "monitor_alarms": filt.n_detections,
             "final_err_pct": [round(100 * (m - t) / t, 2)
                               for m, t in zip(last.mean[:3], th[-1], strict=True)],
+            "final_sigma_pct": [round(100 * s / m, 2)
+                                for m, s in zip(last.mean[:3], last.std[:3], strict=True)],
             "wall_s": round(time.perf_counter() - t0, 1)}
 
 
@@ -260,6 +277,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--noise-scale", type=float, default=1.0,
                     help="sensor noise std of the data relative to the model's (another "
                          "simulator's noise convention)")
+    ap.add_argument("--sensor-noise", choices=("measured", "model"), default="measured",
+                    help="the filter's sensor noise: tested against the data (the service's "
+                         "default) or the model's")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--sensors", type=int, nargs="+", default=[3, 5])
     ap.add_argument("--seconds", type=float, default=None,
@@ -280,11 +300,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.what == "nominal":
                 rows = [nominal_row(ns, seed, seconds=args.seconds or 600.0,
                                     particles=args.particles, mode=args.mode,
-                                    noise_scale=args.noise_scale)]
+                                    noise_scale=args.noise_scale,
+                                    sensor_noise=args.sensor_noise)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
-                                  mode=args.mode, noise_scale=args.noise_scale)
+                                  mode=args.mode, noise_scale=args.noise_scale,
+                                  sensor_noise=args.sensor_noise)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

@@ -278,8 +278,13 @@ class AlertPolicy:
 
     # -- judging -------------------------------------------------------------------
     def step(self, estimate: Estimate) -> list[Alert]:
-        """Judge one estimate; returns the events it causes (usually none)."""
+        """Judge one estimate; returns the events it causes (usually none). A provisional
+        estimate (the estimator still tests its model) is not judged: timers restart."""
         events: list[Alert] = []
+        if estimate.provisional:
+            for tr in self._tracks.values():
+                tr.reset_timers()
+            return events
         for name, pp in self._config.params.items():
             try:
                 i = estimate.names.index(name)

@@ -66,11 +66,14 @@ def run(args: argparse.Namespace) -> int:
                 "seed": cfg.estimator.seed, "track_roughness": cfg.estimator.track_roughness,
                 "estimate_track_roughness": cfg.estimator.estimate_track_roughness,
                 "drift_per_sqrt_s": cfg.estimator.drift_per_sqrt_s,
+                "sensor_noise": cfg.estimator.sensor_noise,
                 "fs_hz": cfg.resampler.fs_hz, "source": str(args.log)}
     diagnostics = {"frames": result.frames, "rejected": result.rejected,
                    "grid_points": result.grid_points}
     if result.front_end is not None:           # late/gap samples by reason (issue 12)
         diagnostics["front_end"] = result.front_end.as_dict()
+    diagnostics["sensor_noise"] = (None if result.noise_check is None
+                                   else result.noise_check.as_dict())
     doc = report.build(result.estimates[-1], history, settings, diagnostics)
     doc["alerts"] = [alert_json(a) for a in result.alerts]
     with writing(report_path):
@@ -78,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         with writing(args.plot):
             report.plot(args.plot, history, result.estimates[-1].names)
+    if result.noise_check is not None:
+        print(result.noise_check.summary())
     print(f"replayed {result.frames} frames ({result.grid_points} grid points): "
           f"{len(result.estimates)} estimates, {len(result.alerts)} alert events -> {report_path}, "
           f"{jsonl_path}")

@@ -20,22 +20,22 @@ from gateway.errors import EstimatorError
 MAGIC = b"RBPF-CKPT-1\n"
 
 
-def pack(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> bytes:
-    """Encode a JSON-able ``meta`` and named arrays."""
+def pack(meta: dict[str, Any], arrays: dict[str, np.ndarray], magic: bytes = MAGIC) -> bytes:
+    """Encode a JSON-able ``meta`` and named arrays, after ``magic``."""
     buf = io.BytesIO()
     named: dict[str, Any] = dict(arrays)
     np.savez(buf, **named)
     head = json.dumps(meta).encode()
-    return MAGIC + struct.pack("<Q", len(head)) + head + buf.getvalue()
+    return magic + struct.pack("<Q", len(head)) + head + buf.getvalue()
 
 
-def unpack(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Decode :func:`pack` output; EstimatorError on anything else."""
-    if not data.startswith(MAGIC):
-        raise EstimatorError(f"expected a checkpoint starting {MAGIC!r}, "
-                             f"got {bytes(data[:len(MAGIC)])!r}")
+def unpack(data: bytes, magic: bytes = MAGIC) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Decode :func:`pack` output made with ``magic``; EstimatorError on anything else."""
+    if not data.startswith(magic):
+        raise EstimatorError(f"expected a checkpoint starting {magic!r}, "
+                             f"got {bytes(data[:len(magic)])!r}")
     try:
-        off = len(MAGIC)
+        off = len(magic)
         (n,) = struct.unpack("<Q", data[off:off + 8])
         meta = json.loads(data[off + 8:off + 8 + n])
         with np.load(io.BytesIO(data[off + 8 + n:]), allow_pickle=False) as npz:

@@ -65,11 +65,10 @@ from gateway.model.vehicle import (
     IDX,
     Theta,
     VehicleParams,
-    measurement_noise,
     sensor_set,
     track_intensity,
 )
-from gateway.records import Estimate, Sample
+from gateway.records import Estimate, NoiseCheck, Sample
 
 __all__ = ["RBPF", "RBPFConfig", "AR_NAME", "PRIOR_SAMPLES"]
 
@@ -103,7 +102,7 @@ class RBPF:
         self.coords = FilterCoords.build(config.params)
         self.sensors = sensor_set(config.sensors)
         self.ny = len(self.sensors)
-        self._r = np.ascontiguousarray(np.diag(measurement_noise(self.sensors)))
+        self._r = np.ascontiguousarray(config.noise_variances)
         self._fast = config.mode == "fast"
         self._steady = False
         self._warm_left = 0
@@ -687,6 +686,10 @@ class RBPF:
         if self._bank is not None:
             self._bank.load(bank)
         return self
+
+    def noise_check(self) -> NoiseCheck | None:
+        """None: a plain filter makes no sensor-noise test (:mod:`.noisestart` does)."""
+        return None
 
     @property
     def n_fault_detections(self) -> int:

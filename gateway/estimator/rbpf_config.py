@@ -15,6 +15,7 @@ from gateway.model.vehicle import (
     THETA_NOMINAL,
     Theta,
     VehicleParams,
+    measurement_noise,
     sensor_set,
 )
 
@@ -54,6 +55,9 @@ class RBPFConfig:
     along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
     off by default until the fast-vs-exact, drift and accuracy campaigns are re-measured
     with it (docs/estimator.md "Start-up lock-in": it removes the 5 s outliers);
+    ``noise_var``: the sensors' white-noise variances (SI units^2, in sensor-set order);
+    None: the paper's Qv (:func:`gateway.model.vehicle.measurement_noise`). The service
+    measures them at the start of a run (:mod:`gateway.estimator.noisestart`);
     ``faults``: the fault-hypothesis bank that detects abrupt changes
     (:mod:`gateway.estimator.faultbank`; None: none);
     ``threads``: numba threads wanted for the kernels (None: all); the process sets them
@@ -87,6 +91,7 @@ class RBPFConfig:
     output_every: int = 1
     moves_drop_null: bool = False
     resample: bool = True
+    noise_var: tuple[float, ...] | None = None
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
     faults: FaultBankConfig | None = field(default_factory=FaultBankConfig)
     nominal: Theta = THETA_NOMINAL
@@ -99,7 +104,12 @@ class RBPFConfig:
             raise EstimatorError(f"expected at least 2 particles, got {self.n_particles}")
         if not 0.0 < self.delta < 1.0:
             raise EstimatorError(f"expected 0 < delta < 1, got {self.delta}")
-        sensor_set(self.sensors)
+        names = sensor_set(self.sensors)
+        if self.noise_var is not None and (
+                len(self.noise_var) != len(names)
+                or not all(np.isfinite(v) and v > 0 for v in self.noise_var)):
+            raise EstimatorError(f"expected {len(names)} positive noise variances for "
+                                 f"{names}, got {self.noise_var}")
         if self.mode not in MODES:
             raise EstimatorError(f"expected mode 'exact' or 'fast', got {self.mode!r}")
         if self.floor_reference not in ("nominal", "value"):
@@ -111,6 +121,13 @@ class RBPFConfig:
                                  f"got {self.walk_rel_per_sqrt_s}")
         if not self.ar_paper > 0:
             raise EstimatorError(f"expected a positive track roughness Ar, got {self.ar_paper}")
+
+    @property
+    def noise_variances(self) -> np.ndarray:
+        """The sensors' noise variances (ny,), SI units^2: ``noise_var`` or the paper's."""
+        if self.noise_var is not None:
+            return np.array(self.noise_var, dtype=float)
+        return np.diag(measurement_noise(self.sensors)).copy()
 
     @property
     def names(self) -> tuple[str, ...]:

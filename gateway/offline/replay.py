@@ -23,7 +23,7 @@ from gateway.can.logs import read_log
 from gateway.config import Config
 from gateway.errors import InputError
 from gateway.frontend.stats import FrontEndStats
-from gateway.records import Alert, Estimate
+from gateway.records import Alert, Estimate, NoiseCheck
 from gateway.runtime.pipeline import Pipeline
 
 log = logging.getLogger(__name__)
@@ -52,6 +52,7 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
         out[name] = {"mean": _sig(p["mean"], 9), "std": _sig(p["std"], 6)}
     out["ess"] = _sig(j["ess"], 6)
     out["updated"] = j["updated"]
+    out["provisional"] = j["provisional"]
     for key in ("v_sy_mps", "v_say_mps"):
         out[key] = _sig(j[key], 6)
     return out
@@ -76,6 +77,8 @@ class ReplayResult:
     grid_points: int = 0
     front_end: FrontEndStats | None = None
     """Late and gap samples by reason, clock steps, SampleIdx jumps, two senders."""
+    noise_check: NoiseCheck | None = None
+    """The estimator's sensor-noise test (None: not made, e.g. under 5 s of data)."""
 
 
 def replay(path: str | Path, cfg: Config, *, speed: float = 0.0, jsonl: IO[str] | None = None,
@@ -123,4 +126,5 @@ def replay(path: str | Path, cfg: Config, *, speed: float = 0.0, jsonl: IO[str] 
     result.rejected = dict(pipe.validator.stats.rejected)
     result.grid_points = pipe.samples_out
     result.front_end = pipe.front.stats()
+    result.noise_check = pipe.stats().noise_check
     return result

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gateway.records import Estimate
+from gateway.records import Estimate, NoiseCheck
 
 # ------------------------------------------------------------- parent -> worker
 
@@ -111,6 +111,14 @@ class CheckpointOut:
 
 
 @dataclass(frozen=True)
+class NoiseOut:
+    """The estimator's sensor-noise test, made by sample ``seq`` (sent once per worker)."""
+
+    seq: int
+    check: NoiseCheck
+
+
+@dataclass(frozen=True)
 class Progress:
     """Every sample up to ``seq`` is stepped (sent after each block)."""
 
@@ -124,5 +132,5 @@ class Stopped:
     seq: int
 
 
-Reply = Ready | EstimateOut | CheckpointOut | Progress | Stopped
+Reply = Ready | EstimateOut | CheckpointOut | NoiseOut | Progress | Stopped
 """Everything a worker puts on its output queue."""

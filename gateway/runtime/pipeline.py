@@ -24,28 +24,30 @@ from gateway.can.codec import Codec
 from gateway.config import Config, EstimatorConfig
 from gateway.estimator.threads import kernel_threads
 from gateway.frontend.chain import FrontEnd
-from gateway.records import Alert, Estimate, Estimator, Sample
+from gateway.records import Alert, Estimate, Estimator, NoiseCheck, Sample
 from gateway.runtime.worker import BLOCK_SAMPLES, WorkerLink, WorkerSettings
 
 log = logging.getLogger(__name__)
 
 
 def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
-    """A fresh RBPF from the configuration (module level, so it pickles to the worker)."""
+    """A fresh RBPF from the configuration (module level, so it pickles to the worker);
+    with ``sensor_noise = "measured"`` it starts with the noise test."""
+    from gateway.estimator.noisestart import NoiseCheckedStart
     from gateway.estimator.rbpf import RBPF, RBPFConfig
 
-    return RBPF(RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
-                           seed=cfg.seed, ar_paper=cfg.track_roughness,
-                           estimate_ar=cfg.estimate_track_roughness,
-                           walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3,
-                           mode=cfg.mode))
+    rbpf = RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
+                      seed=cfg.seed, ar_paper=cfg.track_roughness,
+                      estimate_ar=cfg.estimate_track_roughness,
+                      walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode)
+    return NoiseCheckedStart(rbpf) if cfg.sensor_noise == "measured" else RBPF(rbpf)
 
 
 def restore_estimator(blob: bytes) -> Estimator:
-    """An RBPF restored from checkpoint bytes."""
-    from gateway.estimator.rbpf import RBPF
+    """The estimator restored from checkpoint bytes (a filter, or one in its noise test)."""
+    from gateway.estimator.noisestart import NoiseCheckedStart
 
-    return RBPF.restore(blob)
+    return NoiseCheckedStart.restore(blob)
 
 
 def warm_estimator(numba_threads: int) -> None:
@@ -112,6 +114,8 @@ class PipelineStats:
     rtf: float
     """Estimator real-time factor, data s per wall s (NaN until measured)."""
     sensors: tuple[SensorStatus, ...]
+    noise_check: NoiseCheck | None = None
+    """The estimator's sensor-noise test, once the worker reported it."""
 
 
 @dataclass
@@ -206,7 +210,8 @@ class Pipeline:
             sensors=tuple(SensorStatus(name, m.rate_hz(), 1.0 / m.cycle_time_s, m.accepted,
                                        dict(m.rejected), m.lost_net, m.timeouts, m.timed_out,
                                        dict(m.last_values))
-                          for name, m in self.validator.messages.items()))
+                          for name, m in self.validator.messages.items()),
+            noise_check=w.noise_check)
 
     # ----------------------------------------------------------------- output
     def poll(self, timeout_s: float = 0.0) -> Output:

@@ -50,12 +50,13 @@ from typing import Any, assert_never
 import numpy as np
 
 from gateway.errors import EstimatorError
-from gateway.records import Estimate, Estimator, Sample
+from gateway.records import Estimate, Estimator, NoiseCheck, Sample
 from gateway.runtime.messages import (
     BaselineReset,
     CheckpointOut,
     Control,
     EstimateOut,
+    NoiseOut,
     Progress,
     Ready,
     Reply,
@@ -162,6 +163,7 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any,
     next_out = -math.inf
     next_ckpt = -math.inf
     applied: set[Control] = set()
+    noise_told = False
     while True:
         item: Request = in_q.get()
         if stop.is_set():                # stop now: the backlog is not worked off
@@ -194,6 +196,9 @@ def _worker_main(settings: WorkerSettings, in_q: Any, out_q: Any, stop: Any,
                     e = est.run(run, output_every=len(run))[-1]
                     seq, t = block.seq0 + j, float(block.t_s[j])
                     last_seq = seq
+                    if not noise_told and (check := est.noise_check()) is not None:
+                        _put(out_q, NoiseOut(seq, check))
+                        noise_told = True
                     if t >= next_out:
                         _put(out_q, EstimateOut(seq, e))
                         next_out = t + settings.output_interval_s
@@ -249,6 +254,8 @@ class WorkerStats:
     replay_backlog: int = 0
     priority_error: str | None = None
     """None until a worker reported; "" when its priority was lowered; else why not."""
+    noise_check: NoiseCheck | None = None
+    """The estimator's sensor-noise test, once a worker reported it."""
     errors: list[str] = field(default_factory=list)
 
 
@@ -382,10 +389,18 @@ class WorkerLink:
                 case Ready(priority_error=error):
                     self.stats.ready = True
                     self._priority_reported(error)
+                case NoiseOut(check=check):
+                    self._noise_reported(check)
                 case Progress() | Stopped():
                     pass
                 case _:
                     assert_never(reply)
+
+    def _noise_reported(self, check: NoiseCheck) -> None:
+        if check != self.stats.noise_check:
+            log.log(logging.WARNING if any(check.replaced) or check.note else logging.INFO,
+                    "estimator: %s", check.summary())
+        self.stats.noise_check = check
 
     def _priority_reported(self, error: str | None) -> None:
         if error is None:
@@ -463,6 +478,8 @@ class WorkerLink:
                         self._checkpointed(seq, blob)
                     case Stopped():
                         break
+                    case NoiseOut(check=check):
+                        self._noise_reported(check)
                     case Ready() | Progress():
                         pass
                     case _:

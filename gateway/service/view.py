@@ -137,7 +137,9 @@ class ServiceViewImpl:
                        "worker": {"alive": ps.worker_alive if ps else False,
                                   "restarts": ps.worker_restarts if ps else 0,
                                   "pid": ps.worker_pid if ps else None,
-                                  "rtf": ps.rtf if ps else None},
+                                  "rtf": ps.rtf if ps else None,
+                                  "sensor_noise": (ps.noise_check.summary()
+                                                   if ps and ps.noise_check else None)},
                        "bus": {"state": src.bus_state.name, "open": src.bus_open},
                        "active_alerts": len(s.policy.active),
                        "front_end": front_end_view(p.front.stats() if p else None),

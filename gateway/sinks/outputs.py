@@ -91,7 +91,7 @@ def estimate_status(est: Estimate, index: int) -> str:
     mean, std = est.mean[index], est.std[index]
     if not (math.isfinite(mean) and math.isfinite(std)) or mean <= 0:
         return "Init"
-    return "Valid" if std / mean < CONVERGED_REL_STD else "Converging"
+    return "Valid" if std / mean < CONVERGED_REL_STD and not est.provisional else "Converging"
 
 
 class CanSink:
