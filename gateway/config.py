@@ -70,7 +70,9 @@ class EstimatorConfig:
     change; 0 is the paper's static-parameter filter (docs/estimator.md, "Drift").
     ``sensor_noise``: ``"measured"`` tests the model's sensor noise variances against the
     first 5 s of data and uses the measured ones where the data reject them
-    (:mod:`gateway.estimator.noisestart`); ``"model"`` keeps the paper's Qv.
+    (:mod:`gateway.estimator.noisestart`); ``"model"`` keeps the paper's Qv. "measured"
+    needs white noise on the grid: the resampler's low-pass filters off, and its
+    interpolation "sinc" or "nearest".
     """
 
     particles: int = 1000
@@ -424,6 +426,10 @@ def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
             raise fail("estimator", "sensor_noise", f"expected \"model\" with the resampler's "
                        f"{key} on (the filter removes the band the noise is measured in), "
                        f"got \"measured\"")
+    if r.interpolation == "linear" and cfg.estimator.sensor_noise == "measured":
+        raise fail("estimator", "sensor_noise", "expected \"model\" with [resampler] "
+                   "interpolation = \"linear\" (linear interpolation colours the sensor "
+                   "noise, so the band it is measured in would misread it), got \"measured\"")
     if cfg.estimator.output_rate_hz > r.fs_hz:
         raise fail("estimator", "output_rate_hz", f"expected at most [resampler] fs_hz "
                    f"({r.fs_hz:g}), got {cfg.estimator.output_rate_hz!r}")

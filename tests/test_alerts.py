@@ -118,6 +118,18 @@ def test_confidence_gate_blocks_and_resets_hold():
     assert brief(ev) == [(65.5, "csy_ns_per_m", "WARNING", "RAISED")]
 
 
+def test_provisional_estimates_are_not_judged_and_restart_the_hold():
+    """The estimator's sensor-noise test window: however far past a threshold and
+    however sure, a provisional estimate raises nothing, and the hold starts again at
+    the first estimate after it."""
+    p = AlertPolicy(HOLD_ONLY)
+    events = [e for k in range(50) for e in p.step(dataclasses.replace(
+        est(k / FS_HZ, csy=0.2, con=3.0, std_rel=0.001), provisional=True))]
+    assert events == []
+    ev = run(p, 5.0, 12.0, csy=0.45)
+    assert brief(ev) == [(8.0, "csy_ns_per_m", "WARNING", "RAISED")]
+
+
 def test_gate_uses_nominal_for_low_estimates():
     """A failed damper at 8 kNs/m with sigma 0.8 kNs/m (10 % of itself, 2 % of nominal)."""
     p = AlertPolicy(HOLD_ONLY)

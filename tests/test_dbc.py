@@ -316,3 +316,19 @@ def test_health_flags_frame_carries_every_flag_and_counter(codec: Codec) -> None
         assert (v["GW_HealthFlags_LateFrames"], v["GW_HealthFlags_GapSamples"],
                 v["GW_HealthFlags_WriteFailures"], v["GW_HealthFlags_Resyncs"]) == (k, 7, 3, k)
         assert frames["GW_Health"].values["GW_Health_GwState"] == 1
+
+
+def test_a_provisional_estimate_goes_on_the_bus_as_converging_at_best(codec: Codec) -> None:
+    """The estimator's sensor-noise test window: a converged estimate still says
+    Converging until the test is made, then Valid."""
+    from gateway.records import Estimate
+    from gateway.sinks.outputs import CanSink
+
+    sent: list[can.Message] = []
+    sink = CanSink(codec, lambda m: sent.append(m) or True, 1000)
+    tight = Estimate(1.0, (40e3, 3.0e6, 0.15), (100.0, 1e4, 3e-4), 900.0, provisional=True)
+    sink.emit_estimate(tight)
+    sink.emit_estimate(Estimate(2.0, tight.mean, tight.std, 900.0))
+    status = [v for m in sent for k, v in codec.decode_message(m).values.items()
+              if k.endswith("_Status")]
+    assert status == [1] * 3 + [2] * 3          # 1 Converging, 2 Valid (docs/can-bus.md)

@@ -28,7 +28,8 @@ pytestmark = pytest.mark.slow
 
 SPEC = FleetSpec(vehicles=1, days=2, runs_per_day=1, run_s=4.0, seed=5)
 SINC = with_overrides(Config(), {"estimator.particles": 64})
-LINEAR = with_overrides(SINC, {"resampler.interpolation": "linear"})
+LINEAR = with_overrides(SINC, {"resampler.interpolation": "linear",
+                              "estimator.sensor_noise": "model"})
 
 
 def test_a_new_front_end_makes_the_samples_again_and_replay_waits_for_it(

@@ -57,7 +57,8 @@ def test_log_becomes_the_recording_of_its_samples(tmp_path, suffix, interpolatio
     """Any python-can log: all sensors, uniform grid, the nodes' values, the VEH speed."""
     sim = Simulation(get_scenario("paper"), SimConfig(duration_s=1.0, seed=3), record=True)
     write_log(sim.messages(), tmp_path / f"run{suffix}")
-    cfg = with_overrides(Config(), {"resampler.interpolation": interpolation})
+    cfg = with_overrides(Config(), {"resampler.interpolation": interpolation,
+                                    "estimator.sensor_noise": "model"})
     rec = read_can_log(tmp_path / f"run{suffix}", cfg)
     assert rec.sensors == SENSORS_5
     dt = np.diff(rec.t_s)
@@ -157,7 +158,8 @@ def test_node_phase_does_not_move_the_maximum_likelihood_answer(tmp_path, capsys
         write_log(sim.messages(), tmp_path / f"{case}.log")
         for interpolation in ("sinc", "linear"):
             conf = tmp_path / f"{interpolation}.toml"
-            conf.write_text(f'[resampler]\ninterpolation = "{interpolation}"\n')
+            conf.write_text(f'[resampler]\ninterpolation = "{interpolation}"\n'
+                            f'[estimator]\nsensor_noise = "model"\n')
             rep = tmp_path / f"rep-{case}-{interpolation}"
             code, _, err = _run(["identify", "run", str(tmp_path / f"{case}.log"), "--out",
                                  str(rep), "--config", str(conf)], capsys)

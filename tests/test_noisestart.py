@@ -217,3 +217,12 @@ def test_a_replay_measures_the_sensor_noise_of_the_nodes_on_the_bus(cli, tmp_pat
         assert rel[s] == pytest.approx(scale**2, rel=0.15), rel
         assert replaced[s] == (scale != 1.0), (s, rel)
     assert ("replaced" in proc.stdout) == (scale != 1.0), proc.stdout
+
+
+def test_linear_interpolation_and_the_measured_noise_are_refused_together(tmp_path) -> None:
+    path = tmp_path / "gw.toml"
+    path.write_text('[resampler]\ninterpolation = "linear"\n')
+    with pytest.raises(ConfigError, match="interpolation = \"linear\""):
+        load_config(path)
+    path.write_text('[resampler]\ninterpolation = "nearest"\n')
+    assert load_config(path).estimator.sensor_noise == "measured"

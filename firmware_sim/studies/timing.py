@@ -69,6 +69,12 @@ def set_clocks(sim: Simulation, case: str, rng: np.random.Generator) -> None:
         sim.clocks[node.node] = clock
 
 
+def _sensor_noise(interpolation: str) -> str:
+    """The service's default, "measured", where the configuration allows it: linear
+    interpolation colours the noise, and needs the model's (``gateway.config``)."""
+    return "model" if interpolation == "linear" else "measured"
+
+
 def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: float,
              particles: int, scenario: str, workdir: Path) -> dict[str, Any]:
     """One replay: the final estimate against the truth."""
@@ -82,7 +88,7 @@ def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: fl
     cfg = dataclasses.replace(
         base, resampler=dataclasses.replace(base.resampler, interpolation=interpolation),
         estimator=dataclasses.replace(base.estimator, particles=particles, sensors=sensors,
-                                      seed=seed))
+                                      seed=seed, sensor_noise=_sensor_noise(interpolation)))
     wall0 = time.monotonic()
     est = replay(log_path, cfg).estimates[-1]
     return {"seed": seed, "case": case, "interpolation": interpolation, "sensors": sensors,
