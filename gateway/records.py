@@ -88,7 +88,10 @@ class NoiseCheck:
 
     def as_dict(self) -> dict[str, object]:
         """JSON-able: one entry per sensor, and the test's time and note."""
-        per = {s: {"model_var": m, "band_var": b, "signal_var": g, "se_rel": e,
+        def num(x: float) -> float | None:
+            return x if math.isfinite(x) else None   # strict JSON
+
+        per = {s: {"model_var": m, "band_var": num(b), "signal_var": num(g), "se_rel": num(e),
                    "used_var": u, "replaced": r}
                for s, m, b, g, e, u, r in zip(self.sensors, self.model_var, self.band_var,
                                                self.signal_var, self.se_rel, self.used_var,

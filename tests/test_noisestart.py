@@ -226,3 +226,20 @@ def test_linear_interpolation_and_the_measured_noise_are_refused_together(tmp_pa
         load_config(path)
     path.write_text('[resampler]\ninterpolation = "nearest"\n')
     assert load_config(path).estimator.sensor_noise == "measured"
+
+
+def test_data_too_gappy_to_measure_keep_the_model_and_say_why() -> None:
+    """A sensor missing every 200th sample leaves no complete 256-sample segment: after
+    four windows the test gives up, keeps the model's noise, and its report is strict
+    JSON."""
+    Y = _data(3, 20.5, 1.96, seed=46)
+    Y[1::200, 2] = np.nan
+    smp = _samples(Y)
+    checked = NoiseCheckedStart(_config(particles=16))
+    checked.run(smp[:19999], output_every=1000)
+    assert checked.testing
+    checked.run(smp[19999:], output_every=1000)
+    res = checked.noise_check()
+    assert res is not None and not any(res.replaced) and "too few" in res.note
+    assert res.used_var == res.model_var and res.t_s == pytest.approx(20.0)
+    json.dumps(res.as_dict(), allow_nan=False)

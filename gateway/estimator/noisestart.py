@@ -124,24 +124,25 @@ class NoiseCheckedStart:
         kept = self._kept
         Y = np.stack([s.values for s in kept])
         band = band_variance(Y, cfg.fs_hz, np.array([s.update for s in kept]))
-        model = cfg.noise_variances
+        model = tuple(float(x) for x in cfg.noise_variances)
         sensors = self.inner.sensors
         if band is None or band.segments < MIN_TEST_SEGMENTS:
             if len(kept) < GIVE_UP_WINDOWS * self.window:
                 return est
             nan = (math.nan,) * len(model)
-            return self._finish(NoiseCheck(sensors, tuple(model), nan, nan, nan, tuple(model),
+            return self._finish(NoiseCheck(sensors, model, nan, nan, nan, model,
                                            (False,) * len(model), kept[-1].t_s,
                                            "too few complete segments of data"), est)
         theta = np.array(est.mean[:3])
         speeds = np.array([s.speed_mps for s in kept])
         v = float(np.median(speeds[np.isfinite(speeds) & (speeds > 0)])) \
             if np.any(np.isfinite(speeds) & (speeds > 0)) else math.nan
+        known = math.isfinite(v) and bool(np.all(np.isfinite(theta) & (theta > 0)))
         signal = (model_band_variance(cfg.params, theta, v, sensors, cfg.ar_paper, cfg.fs_hz)
-                  if math.isfinite(v) else np.zeros(len(model)))
-        used, replaced, se = decide(model, band.variance, signal, band.se_rel)
+                  if known else np.zeros(len(model)))
+        used, replaced, se = decide(np.array(model), band.variance, signal, band.se_rel)
         return self._finish(NoiseCheck(
-            sensors, tuple(model), tuple(float(x) for x in band.variance - signal),
+            sensors, model, tuple(float(x) for x in band.variance - signal),
             tuple(float(x) for x in signal), tuple(float(x) for x in se),
             tuple(float(x) for x in used), tuple(bool(x) for x in replaced),
             kept[-1].t_s), est)
