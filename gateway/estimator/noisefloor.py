@@ -18,7 +18,8 @@ relative to the paper's noise: 0.09 % for the bogie accelerometer, 4 % for a whe
 accelerometer at the Sec. 4.2 point (up to 1.8 x at the prior box's corners at 80 m/s,
 hence the subtraction), below 1e-5 for the gyro and the body accelerometer.
 
-Segments: ``SEGMENT`` samples, Hann window, half overlap; a segment with a missing value
+Segments: :func:`segment_len` samples (0.256 s: 256 at 1 kHz, 64 at 250 Hz), Hann window,
+half overlap; a segment with a missing value
 or a predict-only sample is left out. The relative standard error is the scatter of the
 per-segment band means over the square root of their number.
 
@@ -42,8 +43,8 @@ from gateway.model.vehicle import (
 
 BAND_FRACTION = (0.30, 0.42)
 """The measuring band as fractions of the grid rate (300-420 Hz at 1 kHz)."""
-SEGMENT = 256
-"""Samples per periodogram segment (3.9 Hz bins at 1 kHz)."""
+SEGMENT_S = 0.256
+"""Periodogram segment length (3.9 Hz bins)."""
 MIN_SEGMENTS = 8
 """Fewer complete segments than this measure nothing."""
 
@@ -59,9 +60,15 @@ class BandVariance:
     segments: int
 
 
-def band_bins(fs_hz: float, n: int = SEGMENT) -> np.ndarray:
-    """Indices of the rfft bins of an ``n``-sample segment inside the band."""
-    f = np.fft.rfftfreq(n, 1.0 / fs_hz)
+def segment_len(fs_hz: float) -> int:
+    """Samples per periodogram segment on a grid of ``fs_hz``: the power of two nearest
+    ``SEGMENT_S`` (at least 32)."""
+    return max(32, 2 ** int(round(np.log2(SEGMENT_S * fs_hz))))
+
+
+def band_bins(fs_hz: float) -> np.ndarray:
+    """Indices of the rfft bins of a :func:`segment_len` segment inside the band."""
+    f = np.fft.rfftfreq(segment_len(fs_hz), 1.0 / fs_hz)
     lo, hi = BAND_FRACTION[0] * fs_hz, BAND_FRACTION[1] * fs_hz
     return np.flatnonzero((f >= lo) & (f <= hi))
 
@@ -77,12 +84,13 @@ def band_variance(y: np.ndarray, fs_hz: float, usable: np.ndarray | None = None
     ok = np.all(np.isfinite(y), axis=1)
     if usable is not None:
         ok &= np.asarray(usable, dtype=bool)
-    hop = SEGMENT // 2
-    starts = [s for s in range(0, len(y) - SEGMENT + 1, hop) if ok[s:s + SEGMENT].all()]
+    n = segment_len(fs_hz)
+    hop = n // 2
+    starts = [s for s in range(0, len(y) - n + 1, hop) if ok[s:s + n].all()]
     if len(starts) < MIN_SEGMENTS:
         return None
-    w = np.hanning(SEGMENT + 2)[1:-1]            # (SEGMENT,): zero-free Hann
-    seg = np.stack([y[s:s + SEGMENT] for s in starts])            # (S, SEGMENT, ny)
+    w = np.hanning(n + 2)[1:-1]                  # (n,): zero-free Hann
+    seg = np.stack([y[s:s + n] for s in starts])                  # (S, n, ny)
     seg = seg - seg.mean(axis=1, keepdims=True)
     spec = np.fft.rfft(seg * w[None, :, None], axis=1)            # (S, F, ny)
     density = 2.0 * np.abs(spec) ** 2 / (fs_hz * np.sum(w**2))    # one-sided, per Hz
@@ -104,7 +112,7 @@ def model_band_variance(params: VehicleParams, theta: np.ndarray, v_mps: float,
     G = input_matrix()
     H = output_matrix(A, sensors)
     q = track_intensity(ar_paper, v_mps)
-    f_hz = np.fft.rfftfreq(SEGMENT, 1.0 / fs_hz)[band_bins(fs_hz)]
+    f_hz = np.fft.rfftfreq(segment_len(fs_hz), 1.0 / fs_hz)[band_bins(fs_hz)]
     eye = np.eye(A.shape[0])
     total = np.zeros(H.shape[0])
     for f in np.concatenate([f_hz, fs_hz - f_hz]):

@@ -18,7 +18,8 @@ it against the variance the filter assumed:
 
 Estimates made before the test are ``provisional``: the alert policy does not judge
 them (with the sensors 2 x noisier than the model, the untested filter's λ reached
-+55 % within those seconds and raised an ADVISORY).
++55 % within those seconds and raised an ADVISORY), unless a first look after
+``INTERIM_S`` found every sensor's variance within ``TRUST_FACTOR`` of the model's.
 
 The test's standard error is the measurement's own plus ``MODEL_REL`` of the model's
 signal subtracted in the band (that signal depends on θ, the speed and the track).
@@ -41,7 +42,7 @@ import numpy as np
 
 from gateway.errors import EstimatorError
 from gateway.estimator import checkpoint as ckpt
-from gateway.estimator.noisefloor import band_variance, model_band_variance
+from gateway.estimator.noisefloor import BandVariance, band_variance, model_band_variance
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.records import Estimate, NoiseCheck, Sample
 
@@ -59,6 +60,13 @@ PLAUSIBLE = 100.0
 MIN_TEST_SEGMENTS = 16
 """Complete segments (of 256 samples, half overlapping) the test needs: about 2 s of
 usable data; with fewer it waits for the next window."""
+INTERIM_S = 2.0
+"""A first look after this much data: where no sensor's band variance is off by more
+than ``TRUST_FACTOR``, estimates stop being provisional (the test itself still comes at
+the window's end)."""
+TRUST_FACTOR = 1.5
+"""A variance this far off (1.22 x in std) moves λ by about 8 % in seconds, far from
+the alert thresholds (λ +60 %, dampers -25 %); 4 x (2 x in std) moved it +55 %."""
 GIVE_UP_WINDOWS = 4
 """With too few complete segments after this many windows, keep the model's."""
 _RESTART, _RESET = -1, -2
@@ -100,6 +108,8 @@ class NoiseCheckedStart:
         if not window_s > 0:
             raise EstimatorError(f"expected a positive noise window, got {window_s} s")
         self.window = max(1, int(round(window_s * config.fs_hz)))
+        self.interim = max(1, min(self.window, int(round(INTERIM_S * config.fs_hz))))
+        self._trusted = False                # the first look found nothing gross
         self._base = config
         self.inner = RBPF(config)
         self.result: NoiseCheck | None = None
@@ -117,13 +127,38 @@ class NoiseCheckedStart:
         """True until the noise test has been made."""
         return self.result is None
 
+    def _band(self) -> BandVariance | None:
+        kept = self._kept
+        return band_variance(np.stack([s.values for s in kept]), self.inner.config.fs_hz,
+                             np.array([s.update for s in kept]))
+
+    def _signal(self, est: Estimate) -> np.ndarray:
+        """The model's own signal in the band (ny,) at ``est``'s θ and the kept samples'
+        median speed (zeros when either is unknown)."""
+        cfg = self.inner.config
+        theta = np.array(est.mean[:3])
+        speeds = np.array([s.speed_mps for s in self._kept])
+        moving = speeds[np.isfinite(speeds) & (speeds > 0)]
+        if len(moving) == 0 or not np.all(np.isfinite(theta) & (theta > 0)):
+            return np.zeros(self.inner.ny)
+        return model_band_variance(cfg.params, theta, float(np.median(moving)),
+                                   self.inner.sensors, cfg.ar_paper, cfg.fs_hz)
+
+    def _looks_right(self, est: Estimate) -> bool:
+        """The first look: every sensor's band variance within ``TRUST_FACTOR`` of the
+        model's (no test, nothing replaced)."""
+        band = self._band()
+        if band is None:
+            return False
+        ratio = (band.variance - self._signal(est)) / self.inner.config.noise_variances
+        return bool(np.all((ratio > 1.0 / TRUST_FACTOR) & (ratio < TRUST_FACTOR)))
+
     def _test(self, est: Estimate) -> Estimate:
         """Test the kept samples (``est``: the filter's estimate after them); the
         estimate after them from the filter that goes on."""
         cfg = self.inner.config
         kept = self._kept
-        Y = np.stack([s.values for s in kept])
-        band = band_variance(Y, cfg.fs_hz, np.array([s.update for s in kept]))
+        band = self._band()
         model = tuple(float(x) for x in cfg.noise_variances)
         sensors = self.inner.sensors
         if band is None or band.segments < MIN_TEST_SEGMENTS:
@@ -133,13 +168,7 @@ class NoiseCheckedStart:
             return self._finish(NoiseCheck(sensors, model, nan, nan, nan, model,
                                            (False,) * len(model), kept[-1].t_s,
                                            "too few complete segments of data"), est)
-        theta = np.array(est.mean[:3])
-        speeds = np.array([s.speed_mps for s in kept])
-        v = float(np.median(speeds[np.isfinite(speeds) & (speeds > 0)])) \
-            if np.any(np.isfinite(speeds) & (speeds > 0)) else math.nan
-        known = math.isfinite(v) and bool(np.all(np.isfinite(theta) & (theta > 0)))
-        signal = (model_band_variance(cfg.params, theta, v, sensors, cfg.ar_paper, cfg.fs_hz)
-                  if known else np.zeros(len(model)))
+        signal = self._signal(est)
         used, replaced, se = decide(np.array(model), band.variance, signal, band.se_rel)
         return self._finish(NoiseCheck(
             sensors, model, tuple(float(x) for x in band.variance - signal),
@@ -183,18 +212,25 @@ class NoiseCheckedStart:
                     continue
                 self._start = self.inner.checkpoint()
             n = min(len(chunk) - i, self.window - len(self._kept) % self.window)
+            if len(self._kept) < self.interim:
+                n = min(n, self.interim - len(self._kept))
             est = self.inner.run(chunk[i:i + n], output_every=n)[-1]
             self._kept.extend(chunk[i:i + n])
             i += n
+            if len(self._kept) == self.interim:
+                self._trusted = self._looks_right(est)
             if len(self._kept) % self.window == 0:
                 est = self._test(est)
         assert est is not None
-        return est if self.result is not None else replace(est, provisional=True)
+        if self.result is not None or self._trusted:
+            return est
+        return replace(est, provisional=True)
 
     # ------------------------------------------------------------ Estimator
     def reset(self, rng: np.random.Generator) -> None:
         self.inner = RBPF(self._base, rng)
         self.result, self._start, self._kept, self._events = None, None, [], []
+        self._trusted = False
 
     def step(self, sample: Sample) -> Estimate:
         if self.result is not None:
@@ -246,7 +282,8 @@ class NoiseCheckedStart:
         }
         if self._start is not None:
             arrays["start"] = np.frombuffer(self._start, dtype=np.uint8)
-        return ckpt.pack({"window": self.window}, arrays, magic=MAGIC)
+        return ckpt.pack({"window": self.window, "interim": self.interim,
+                          "trusted": self._trusted}, arrays, magic=MAGIC)
 
     @classmethod
     def restore(cls, blob: bytes) -> NoiseCheckedStart | RBPF:
@@ -259,6 +296,8 @@ class NoiseCheckedStart:
             inner = RBPF.restore(arrays["inner"].tobytes())
             self = cls.__new__(cls)
             self.window = int(meta["window"])
+            self.interim = int(meta["interim"])
+            self._trusted = bool(meta["trusted"])
             self._base = inner.config
             self.inner = inner
             self.result = None

@@ -142,7 +142,7 @@ def test_simulator_to_gateway_estimates_and_alerts(gateway, tmp_path):
     note(f"played {log.name}")
     frames = gateway.frames
     # The worker emits an estimate every 0.1 s of data time: wait for (nearly) the whole
-    # run to come back, which includes the alert the worn damper raises at 3.6-4.4 s.
+    # run to come back, which includes the alert the worn damper raises at 2.5-5.6 s.
     expected = int(0.95 * e2e_traffic.DURATION_S * 10)
     assert gateway.read_until(lambda: all(len(frames[n]) >= expected for n in ESTIMATES),
                               RESULTS_WAIT_S), ({n: len(f) for n, f in frames.items()},
