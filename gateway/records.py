@@ -45,9 +45,9 @@ class Estimate:
     plus Ar (paper units) as a 4th entry when it is estimated jointly.
     ``ess`` is the effective sample size; ``v_sy_mps``/``v_say_mps`` are the damper
     operating velocities from the state estimates (paper Figs. 9-10). ``provisional``:
-    the estimator is still testing its model against the data (the sensor-noise test's
-    first 5 s, :mod:`gateway.estimator.noisestart`); the alert policy does not judge it,
-    and the estimate frame says Converging at best.
+    the estimator is still testing its model against the data (the first 2-5 s of the
+    sensor-noise test, :mod:`gateway.estimator.noisestart`); the alert policy does not
+    judge it, and the estimate frame says Converging at best.
     """
 
     t_s: float
