@@ -422,14 +422,11 @@ def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
         if getattr(r, key) >= r.fs_hz / 2:
             raise fail("resampler", key, f"expected 0 (off) or a cut-off below fs_hz / 2 = "
                        f"{r.fs_hz / 2:g} Hz, got {getattr(r, key)!r}")
-        if getattr(r, key) and cfg.estimator.sensor_noise == "measured":
-            raise fail("estimator", "sensor_noise", f"expected \"model\" with the resampler's "
-                       f"{key} on (the filter removes the band the noise is measured in), "
-                       f"got \"measured\"")
-    if r.interpolation == "linear" and cfg.estimator.sensor_noise == "measured":
-        raise fail("estimator", "sensor_noise", "expected \"model\" with [resampler] "
-                   "interpolation = \"linear\" (linear interpolation colours the sensor "
-                   "noise, so the band it is measured in would misread it), got \"measured\"")
+    colouring = _noise_colouring(r)
+    if colouring and cfg.estimator.sensor_noise == "measured":
+        raise fail("estimator", "sensor_noise", f"expected \"model\" with {colouring} (the "
+                   f"estimator's noise test needs white sensor noise on the grid), got "
+                   f"\"measured\"")
     if cfg.estimator.output_rate_hz > r.fs_hz:
         raise fail("estimator", "output_rate_hz", f"expected at most [resampler] fs_hz "
                    f"({r.fs_hz:g}), got {cfg.estimator.output_rate_hz!r}")
@@ -438,6 +435,17 @@ def _build(data: dict[str, Any], source: str, text: str | None) -> Config:
                    f"output_rate_hz ({cfg.estimator.output_rate_hz:g}), got "
                    f"{cfg.output.estimate_rate_hz!r}")
     return cfg
+
+
+def _noise_colouring(r: ResamplerConfig) -> str:
+    """What in the resampler filters or colours the sensor noise on the grid ('' if
+    nothing): a low-pass filter removes the band the noise is measured in, linear
+    interpolation colours it."""
+    on = [key for key in ("lowpass_wheelset_acc_hz", "lowpass_bogie_acc_hz",
+                          "lowpass_gyro_hz", "lowpass_body_acc_hz") if getattr(r, key)]
+    if on:
+        return f"[resampler] {on[0]} on"
+    return '[resampler] interpolation = "linear"' if r.interpolation == "linear" else ""
 
 
 def load_config(path: str | Path | None) -> Config:

@@ -169,18 +169,6 @@ def test_the_service_builds_the_test_unless_told_to_keep_the_model() -> None:
     assert isinstance(build_estimator(cfg.estimator, FS_HZ), NoiseCheckedStart)
 
 
-def test_low_pass_filters_and_the_measured_noise_are_refused_together(tmp_path) -> None:
-    path = tmp_path / "gw.toml"
-    path.write_text("[resampler]\nlowpass_gyro_hz = 10.0\n")
-    with pytest.raises(ConfigError, match='sensor_noise: expected "model"'):
-        load_config(path)
-    path.write_text("[resampler]\nlowpass_gyro_hz = 10.0\n[estimator]\nsensor_noise = \"model\"\n")
-    assert load_config(path).estimator.sensor_noise == "model"
-    path.write_text("[estimator]\nsensor_noise = \"guess\"\n")
-    with pytest.raises(ConfigError, match="sensor_noise"):
-        load_config(path)
-
-
 def test_a_start_at_standstill_waits_for_data_before_the_window() -> None:
     """Predict-only samples (the gate at standstill) before the first data: the window
     starts at the first data, and the replacement starts from the filter as it was
@@ -222,13 +210,28 @@ def test_a_replay_measures_the_sensor_noise_of_the_nodes_on_the_bus(cli, tmp_pat
     assert ("replaced" in proc.stdout) == (scale != 1.0), proc.stdout
 
 
-def test_linear_interpolation_and_the_measured_noise_are_refused_together(tmp_path) -> None:
+@pytest.mark.parametrize("resampler, refused", [
+    ("lowpass_gyro_hz = 10.0", "lowpass_gyro_hz on"),
+    ('interpolation = "linear"', 'interpolation = "linear"'),
+])
+def test_what_colours_the_noise_and_the_measured_noise_are_refused_together(
+        tmp_path, resampler: str, refused: str) -> None:
     path = tmp_path / "gw.toml"
-    path.write_text('[resampler]\ninterpolation = "linear"\n')
-    with pytest.raises(ConfigError, match="interpolation = \"linear\""):
+    path.write_text(f"[resampler]\n{resampler}\n")
+    with pytest.raises(ConfigError, match=f'sensor_noise: expected "model" with .*{refused}'):
         load_config(path)
+    path.write_text(f'[resampler]\n{resampler}\n[estimator]\nsensor_noise = "model"\n')
+    assert load_config(path).estimator.sensor_noise == "model"
+
+
+def test_nearest_interpolation_keeps_the_measured_noise_and_a_bad_choice_is_refused(
+        tmp_path) -> None:
+    path = tmp_path / "gw.toml"
     path.write_text('[resampler]\ninterpolation = "nearest"\n')
     assert load_config(path).estimator.sensor_noise == "measured"
+    path.write_text("[estimator]\nsensor_noise = \"guess\"\n")
+    with pytest.raises(ConfigError, match="sensor_noise"):
+        load_config(path)
 
 
 def test_data_too_gappy_to_measure_keep_the_model_and_say_why() -> None:
