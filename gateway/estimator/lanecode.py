@@ -22,6 +22,13 @@ invalidated whenever the generated code changes. SLP vectorisation is switched o
 while these kernels compile (``numba.config.SLP_VECTORIZE``), never globally. A kernel
 compiles on its first call, not at import (:class:`Kernel`), so that
 :mod:`gateway.estimator.precompile` can compile them in parallel processes.
+
+Every kernel is one ``for ch in prange(nch):`` loop over chunks. numba's parfor passes
+(copy propagation, reaching definitions) grow much faster than linearly with the size
+of that loop's body: the doubling kernel's 2,400-line body took 281 s of them. Such a
+kernel is therefore compiled with its body as a separate, serial function of one chunk
+(:func:`split_chunk_loop`), which the ``prange`` loop calls: 60 s (measured
+2026-11-25). The arithmetic, and so every result, is the same either way.
 """
 
 from __future__ import annotations
@@ -134,31 +141,93 @@ KERNELS: dict[str, Kernel] = {}
 """Every kernel made by :func:`compile_kernel` in this process, by ``module.name``."""
 
 
-def compile_kernel(name: str, lines: list[str], signature: str, *, module: str,
-                   source_file: str, parallel: bool,
-                   env: dict[str, Any] | None = None) -> Kernel:
-    """Generated source ``lines`` (a ``def name(...)``) as a :class:`Kernel`, which numba
-    compiles (cached on disk) on its first call, not at import: so that
-    :mod:`gateway.estimator.precompile` can compile the kernels in parallel processes.
+_OPTIONS: dict[str, Any] = {"cache": True, "fastmath": {"contract"}, "nogil": True}
+"""numba options of every kernel function."""
+_CHUNK_OPTIONS: dict[str, Any] = {"error_model": "numpy"}
+"""And of a chunk function: numpy's error model, which numba gives a prange body too (a
+division by zero gives inf or nan, which the kernels test for, with no branch around
+every division)."""
 
-    The function gets a name suffixed with a hash of its source, and ``source_file`` as
-    its file name, so numba's cache keys on both; ``module`` is the importable module
-    that numba re-imports when it loads the cached code. ``fastmath`` is limited to FMA
-    contraction (no reassociation: sums keep their order, results stay deterministic).
+PRANGE_LINE = "    for ch in prange(nch):"
+"""The one chunk loop every generated kernel has, at the top level of its body."""
+
+
+def split_chunk_loop(lines: list[str], name: str, chunk_name: str) -> tuple[list[str],
+                                                                            list[str]]:
+    """A kernel's source as (outer, chunk): ``chunk_name(<args>, ch)`` runs the body of
+    the kernel's ``prange`` loop for chunk ``ch``, after the same preamble (shape reads),
+    and the outer ``name`` keeps the preamble and the loop, which now only calls it.
+
+    Expects ``def name(<args>):``, preamble lines, :data:`PRANGE_LINE`, and the body
+    indented below it to the end; anything else is a generator bug (ValueError).
     """
-    text = "\n".join(lines) + "\n"
-    digest = hashlib.sha1(text.encode()).hexdigest()[:12]
-    unique = f"{name}_{digest}"
-    text = text.replace(f"def {name}(", f"def {unique}(", 1)
+    head = f"def {name}("
+    if not lines or not lines[0].startswith(head) or not lines[0].endswith("):"):
+        raise ValueError(f"expected a kernel source starting 'def {name}(...):', "
+                         f"got {lines[0] if lines else 'nothing'!r}")
+    args = lines[0][len(head):-2]
+    if lines.count(PRANGE_LINE) != 1:
+        raise ValueError(f"expected one {PRANGE_LINE.strip()!r} in kernel {name}, "
+                         f"got {lines.count(PRANGE_LINE)}")
+    at = lines.index(PRANGE_LINE)
+    preamble, body = lines[1:at], lines[at + 1:]
+    stray = [b for b in body if b.strip() and not b.startswith("        ")]
+    if stray:
+        raise ValueError(f"expected kernel {name}'s loop body to run to its end, "
+                         f"got {stray[0]!r} after it")
+    chunk = [f"def {chunk_name}({args}, ch):", *preamble, *(b[4:] for b in body)]
+    outer = [lines[0], *preamble, PRANGE_LINE, f"        {chunk_name}({args}, ch)"]
+    return outer, chunk
+
+
+def _chunk_signature(signature: str) -> str:
+    """``void(<types>)`` of a kernel as that of its chunk function: ``void(<types>, i8)``."""
+    if not (signature.startswith("void(") and signature.endswith(")")):
+        raise ValueError(f"expected a kernel signature 'void(...)', got {signature!r}")
+    return signature[:-1] + ", i8)"
+
+
+def compile_kernel(name: str, lines: list[str], signature: str, *, module: str,
+                   source_file: str, parallel: bool, chunk_function: bool = False,
+                   env: dict[str, Any] | None = None) -> Kernel:
+    """Generated source ``lines`` (a ``def name(...)`` whose body is one ``prange`` loop
+    over chunks) as a :class:`Kernel`, which numba compiles (cached on disk) on its first
+    call, not at import: so that :mod:`gateway.estimator.precompile` can compile the
+    kernels in parallel processes.
+
+    ``chunk_function``: the loop body becomes a serial function of one chunk
+    (:func:`split_chunk_loop`), which compiles in a fraction of the time (module
+    docstring) but runs 3-9 % slower (measured on one thread, 2026-11-25: numba marks
+    a prange body's arrays as not aliased, and a function's it cannot). For the large,
+    rarely called doubling kernel, not for the per-sample ones.
+
+    The function(s) get names suffixed with a hash of the source as compiled and its
+    options, and ``source_file`` as their file name, so numba's cache keys on both;
+    ``module`` is the importable module that numba re-imports when it loads the cached
+    code. ``fastmath`` is limited to FMA contraction (no reassociation: sums keep their
+    order, results stay deterministic).
+    """
+    chunk: list[str] = []
+    outer = lines
+    if chunk_function:
+        outer, chunk = split_chunk_loop(lines, name, f"{name}_chunk")
+    text = "\n".join(chunk) + "\n\n\n" + "\n".join(outer) + "\n"
+    # the compile options are part of what is cached: a change of them renames too
+    recipe = f"{text}\n{signature}\nparallel={parallel}\n{_CHUNK_OPTIONS}\n{_OPTIONS}"
+    digest = hashlib.sha1(recipe.encode()).hexdigest()[:12]
+    unique, chunk_unique = f"{name}_{digest}", f"{name}_chunk_{digest}"
+    text = text.replace(f"{name}_chunk(", f"{chunk_unique}(").replace(
+        f"def {name}(", f"def {unique}(", 1)
 
     def build() -> Callable[..., Any]:
         namespace: dict[str, Any] = {"np": np, "prange": numba.prange, "__name__": module}
         namespace.update(env or {})
         exec(compile(text, source_file, "exec"), namespace)  # noqa: S102 - generated, no input
-        func = namespace[unique]
         with _slp_enabled():
-            return numba.njit(signature, parallel=parallel, cache=True, fastmath={"contract"},
-                              nogil=True)(func)
+            if chunk_function:
+                namespace[chunk_unique] = numba.njit(_chunk_signature(signature), **_OPTIONS,
+                                                     **_CHUNK_OPTIONS)(namespace[chunk_unique])
+            return numba.njit(signature, parallel=parallel, **_OPTIONS)(namespace[unique])
 
     kernel = Kernel(f"{module}.{name}", build)
     KERNELS[kernel.name] = kernel

@@ -1,8 +1,8 @@
 """Compile the estimator's kernels into numba's on-disk cache, in parallel processes.
 
 A fresh install, or a changed kernel, compiles every generated kernel
-(:mod:`gateway.estimator.lanecode`) on its first use: minutes on one core, most of
-them in the steady-state kernels. ``python -m gateway.estimator.precompile`` compiles
+(:mod:`gateway.estimator.lanecode`) on its first use: about 2 minutes on one core, the
+largest share in the steady-state DARE kernel. ``python -m gateway.estimator.precompile`` compiles
 them once, one kernel per process, over the available cores; afterwards every
 process (the worker, replay, the tests) loads them from the cache in about a second.
 The kernels and their results are the same either way: this only fills the cache

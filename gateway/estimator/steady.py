@@ -428,7 +428,7 @@ _SDA_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8
 _BLOCK_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], b1[::1], f8[:, ::1], "
               "f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1])")
 _sda_kernel = compile_kernel("sda", _sda_source(NZ), _SDA_SIG, module=__name__,
-                             source_file=__file__, parallel=True)
+                             source_file=__file__, parallel=True, chunk_function=True)
 _block_kernel = compile_kernel("kf_steady_block", _block_source(NZ), _BLOCK_SIG,
                                module=__name__, source_file=__file__, parallel=True)
 
