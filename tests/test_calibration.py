@@ -32,12 +32,18 @@ def test_stated_sigma_covers_the_truth_and_is_not_below_the_ml_sigma(sensors: in
 
 @pytest.mark.slow
 def test_dropping_the_null_component_at_moves_removes_a_start_up_outlier() -> None:
-    """5 sensors, paper scenario, campaign seed 10 at 5 s: the default filter ends with
-    Csy +12 % and lambda +9.7 % at 6.6 and 6.0 sigma. With ``moves_drop_null`` every
-    parameter is within 3 sigma of the truth."""
-    (row,) = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=(5.0,),
-                      moves_drop_null=True)
-    assert all(abs(z) <= 3.0 for z in row["z"]), row
+    """5 sensors, paper scenario, the campaign's worst record (seed 10, 20 s long) read at
+    5 s: with whole states at the moves (``moves_drop_null=False``, the default until
+    2026-11-25) the filter stands at Csy +12 % and lambda +9.7 %, 6.6 and 6.0 sigma from
+    the truth. The service's filter (the static-yaw component dropped at the moves) has
+    Csy back within 3 sigma and lambda at 3.9 sigma: reduced, not gone; every parameter
+    within the issue's 4 sigma bound for a single case."""
+    at = (5.0, 20.0)                      # the record's length decides its noise draw
+    row = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at)[0]
+    assert row["moves_drop_null"] and row["t_s"] == 5.0
+    assert abs(row["z"][0]) <= 3.0 and all(abs(z) <= 4.0 for z in row["z"]), row
+    whole = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at, moves_drop_null=False)[0]
+    assert abs(whole["z"][0]) > 4.0 and abs(whole["z"][2]) > 4.0, whole
 
 
 @pytest.mark.slow

@@ -210,22 +210,37 @@ def test_mode_is_checked() -> None:
         RBPFConfig(fs_hz=FS_HZ, mode="quick")
 
 
+PAIRED_SEEDS = (21, 22, 23, 24)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [21, 22])
-def test_fast_mode_recovers_the_truth_like_the_exact_mode(seed: int) -> None:
+def test_fast_mode_recovers_the_truth_like_the_exact_mode() -> None:
     """Paper scenario, 3 sensors, 5 s, 500 particles: fast and exact on the same data and
-    filter seed. Both within 3 sigma (+1 %) of the truth; fast within 0.5 exact sigma of
-    exact (the campaign in docs/estimator.md measures 0.3 sigma over many records)."""
-    S = _samples(_outputs(5000, 3, seed=seed))
-    out = {}
-    for mode in ("fast", "exact"):
-        filt = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=500, sensors=3, seed=seed, mode=mode))
-        out[mode] = filt.run(S, output_every=500)[-1]
-    for mode, est in out.items():
-        mean, std = np.array(est.mean), np.array(est.std)
-        assert (np.abs(mean - NOMINAL) < 3 * std + 0.01 * NOMINAL).all(), (mode, mean / NOMINAL)
-    gap = np.abs(np.array(out["fast"].mean) - np.array(out["exact"].mean))
-    assert (gap < 0.5 * np.array(out["exact"].std) + 0.005 * NOMINAL).all(), gap
+    filter seed, four realisations. Every run within 3 sigma (+1 %) of the truth; the
+    median over the pairs of |fast - exact| / exact sigma below 0.5 for every parameter
+    (the campaign in docs/estimator.md measures medians of 0.3 sigma or less).
+
+    A median, not every pair: from 2 s on the two modes are different particle
+    approximations, and one pair's gap is Monte Carlo noise of that size (two exact runs
+    that differ only in the filter seed are 0.2-1.2 sigma apart in median, up to 9 sigma at
+    worst); a bound of 0.5 sigma on each pair failed about one seed in five, with the
+    moves' static-yaw step on or off (docs/estimator.md "Fast mode against exact mode")."""
+    gaps, seen = [], []
+    for seed in PAIRED_SEEDS:
+        S = _samples(_outputs(5000, 3, seed=seed))
+        out = {}
+        for mode in ("fast", "exact"):
+            filt = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=500, sensors=3, seed=seed,
+                                   mode=mode))
+            out[mode] = filt.run(S, output_every=500)[-1]
+        for mode, est in out.items():
+            mean, std = np.array(est.mean), np.array(est.std)
+            assert (np.abs(mean - NOMINAL) < 3 * std + 0.01 * NOMINAL).all(), (
+                seed, mode, mean / NOMINAL)
+        fast, exact = np.array(out["fast"].mean), np.array(out["exact"].mean)
+        gaps.append(np.abs(fast - exact) / np.array(out["exact"].std))
+        seen.append((seed, np.round(gaps[-1], 2)))
+    assert (np.median(gaps, axis=0) < 0.5).all(), seen
 
 
 @pytest.mark.parametrize(("mode", "n_sensors"), [("fast", 3), ("fast", 5), ("exact", 3)])

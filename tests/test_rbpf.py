@@ -7,6 +7,7 @@ import pytest
 
 from firmware_sim.studies.accuracy import FS_HZ, V_MPS, make_data, run_filter
 from gateway.errors import EstimatorError
+from gateway.estimator import checkpoint as ckpt
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.model.vehicle import THETA_NOMINAL, THETA_SEC42
 from gateway.records import Estimate, Sample
@@ -87,6 +88,27 @@ def test_checkpoint_restore_is_bit_exact(data3: np.ndarray) -> None:
     assert a.n_resamples > 0
     assert ea == eb
     assert a.checkpoint() == b.checkpoint()
+
+
+def test_a_checkpoint_keeps_its_own_move_setting(data3: np.ndarray) -> None:
+    """The static-yaw step of the moves (``moves_drop_null``) is on by default. A filter
+    restored from a checkpoint keeps the setting it ran with, and a checkpoint written
+    before the option existed (no such key) moved whole states, so it continues so: its
+    estimates equal those of a filter that ran with the option off all along."""
+    assert RBPFConfig(fs_hz=FS_HZ).moves_drop_null
+    off = RBPFConfig(fs_hz=FS_HZ, n_particles=64, sensors=3, seed=5, moves_drop_null=False)
+    a = RBPF(off)
+    for s in samples(data3[:300]):
+        a.step(s)
+    meta, arrays = ckpt.unpack(a.checkpoint())
+    assert meta["config"].pop("moves_drop_null") is False
+    old = RBPF.restore(ckpt.pack(meta, arrays))
+    assert not old.config.moves_drop_null
+    rest = samples(data3[300:700], start=300)
+    assert a.n_resamples > 0
+    assert [a.step(s) for s in rest] == [old.step(s) for s in rest]
+    assert RBPF.restore(RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=64)).checkpoint()
+                        ).config.moves_drop_null
 
 
 def test_same_seed_same_result(data3: np.ndarray) -> None:

@@ -20,7 +20,9 @@ Produces the tables of docs/estimator.md (JSON lines on stdout, one per run):
 ``compare``, exact, the reference, for the others). Every row records its mode. Each row
 gives, at the checkpoints, the relative error of the posterior mean, sigma/mean, and
 whether the truth lies within 2 sigma. Data seed ``1000 + seed``, filter seed ``seed``,
-in every mode. Not used by the service; a measuring tool.
+in every mode. ``--moves-drop-null`` / ``--no-moves-drop-null`` sets that option of every
+filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`; rows record it). Not used by
+the service; a measuring tool.
 """
 
 from __future__ import annotations
@@ -128,6 +130,7 @@ def step_run(seed: int, sensors: int, seconds: float, fault_at_s: float,
             break
     after = [t - fault_at_s for t in det_s if t > fault_at_s]
     return {"what": "step", "mode": base["mode"], "seed": seed, "sensors": sensors,
+            "moves_drop_null": filt.config.moves_drop_null,
             "seconds": seconds, "fault_at_s": fault_at_s, "particles": base["n_particles"],
             "detect_delay_s": after[0] if after else None,
             "detections_before_fault": sum(t <= fault_at_s for t in det_s),
@@ -151,8 +154,8 @@ def _gap(a: dict[str, Any], ref: dict[str, Any], key: str) -> list[float]:
 
 
 def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, seconds: float,
-            modes: Sequence[str] = ("fast", "exact"), reseeded: bool = False
-            ) -> Iterator[dict[str, Any]]:
+            modes: Sequence[str] = ("fast", "exact"), reseeded: bool = False,
+            **extra: Any) -> Iterator[dict[str, Any]]:
     """Paired runs of the paper scenario, one row per (seed, sensors, mode), a ``pair`` row
     per (seed, sensors) when both modes run, then ``compare_summary`` rows.
 
@@ -160,7 +163,8 @@ def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, second
     parameter is |mean_fast - mean_exact| / sigma_exact at a checkpoint (3, 5 and 20 s,
     those within ``seconds``; the end when none is). ``reseeded`` adds the Monte Carlo
     noise floor: an exact run with filter seed ``seed + RESEED_OFFSET`` (role
-    ``exact_reseeded``) and its gap to the exact run.
+    ``exact_reseeded``) and its gap to the exact run. ``extra``: further
+    :class:`RBPFConfig` fields of every run.
     """
     at_s = [t for t in COMPARE_AT_S if t <= seconds] or [seconds]
     truth = THETA_SEC42.as_array()
@@ -175,10 +179,12 @@ def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, second
             if reseeded:
                 roles.append(("exact_reseeded", "exact", seed + RESEED_OFFSET))
             for role, mode, fseed in roles:
-                est, filt, wall = run_filter(Y, RBPFConfig(**_base(particles, ns, fseed, mode)))
+                cfg = RBPFConfig(**_base(particles, ns, fseed, mode, **extra))
+                est, filt, wall = run_filter(Y, cfg)
                 row = {"what": "compare", "mode": mode, "role": role, "seed": seed,
                        "filter_seed": fseed, "sensors": ns,
                        "particles": particles, "seconds": seconds,
+                       "moves_drop_null": cfg.moves_drop_null,
                        **summarise(est, truth, at_s), "resamples": filt.n_resamples,
                        "detections": filt.n_detections, "wall_s": wall}
                 runs.append(row)
@@ -294,6 +300,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     default=RBPFConfig.floor_reference)
     ap.add_argument("--ess-threshold", type=float, default=RBPFConfig.ess_threshold,
                     help="resample when ESS < this x m (default: the estimator's)")
+    ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
+                    default=RBPFConfig.moves_drop_null,
+                    help="the filter's moves_drop_null option (default: the estimator's)")
     ap.add_argument("--walk", type=float, default=None,
                     help="random-walk rate of every parameter, relative per sqrt(s) "
                          "(default: the estimator's)")
@@ -304,11 +313,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     seconds = args.seconds if args.seconds is not None else (20.0 if is_cmp else 5.0)
     fault_at = args.fault_at if args.fault_at is not None else (8.0 if is_cmp else 10.0)
     if is_cmp:
+        opt = {"moves_drop_null": args.moves_drop_null}
         for row in compare(seeds, args.sensors, args.particles, seconds, modes,
-                           args.reseeded):
+                           args.reseeded, **opt):
             _print(row)
         steps = [step_run(seed, 3, args.step_seconds, fault_at,
-                          _base(args.particles, 3, seed, mode))
+                          _base(args.particles, 3, seed, mode, **opt))
                  for seed in args.step_seeds for mode in modes]
         for row in steps:
             _print(row)
@@ -327,7 +337,7 @@ def _one(args: argparse.Namespace, seed: int, ns: int, mode: str, n: int, second
          fault_at: float) -> None:
     """One run of the paper, roughness, step or nominal case; prints its rows."""
     base = _base(args.particles, ns, seed, mode, floor_reference=args.floor_reference,
-                 ess_threshold=args.ess_threshold)
+                 ess_threshold=args.ess_threshold, moves_drop_null=args.moves_drop_null)
     if args.walk is not None:
         base["walk_rel_per_sqrt_s"] = (args.walk,) * 3
     if args.what == "nominal":
@@ -356,6 +366,7 @@ def _one(args: argparse.Namespace, seed: int, ns: int, mode: str, n: int, second
     for name, extra in variants:
         est, filt, wall = run_filter(Y, RBPFConfig(**base, **extra))
         _print({"what": args.what, "mode": mode, "variant": name, "seed": seed,
+                "moves_drop_null": filt.config.moves_drop_null,
                 "sensors": ns, "seconds": seconds, **summarise(est, truth, checkpoints),
                 "resamples": filt.n_resamples, "detections": filt.n_detections,
                 "wall_s": wall})

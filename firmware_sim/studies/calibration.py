@@ -14,8 +14,8 @@ filter's z-score ``(mean - truth) / sigma`` and ``sigma / sigma_ML``.
 (:class:`gateway.estimator.rbpf_config.RBPFConfig` ``prior_lo``/``prior_hi`` times
 nominal) and runs 10 s (start-up: is the lock-in gone everywhere in the box?); no ML fit.
 
-``--moves-drop-null`` runs the filter with that option of
-:class:`gateway.estimator.rbpf_config.RBPFConfig` on (off by default).
+``--moves-drop-null`` / ``--no-moves-drop-null`` runs the filter with that option of
+:class:`gateway.estimator.rbpf_config.RBPFConfig` on or off (default: the filter's own).
 
 ``summary < rows.jsonl`` gives, per (study, option, sensors, time): the share of records
 with the truth inside +-2 sigma per parameter, the largest |z|, and the smallest
@@ -31,15 +31,12 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
 from firmware_sim.truth import measured
-from gateway.estimator.noisestart import NoiseCheckedStart
-from gateway.estimator.rbpf import RBPF
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
@@ -77,17 +74,15 @@ def ml_fit(Y: np.ndarray, sensors: int, seconds: float) -> tuple[list[float], li
 
 def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              ml: bool, at_s: Sequence[float] | None = None,
-             moves_drop_null: bool = False) -> list[dict[str, Any]]:
+             moves_drop_null: bool | None = None) -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
-    record, which lasts until the last of them; ``moves_drop_null`` switches that
-    option of the service's filter on (:class:`gateway.estimator.rbpf_config.RBPFConfig`)."""
+    record, which lasts until the last of them; ``moves_drop_null`` overrides that
+    option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
+    None: the default)."""
     theta = THETA_SEC42.as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s))
-    filt = service_filter(sensors, seed, particles, mode)
-    if moves_drop_null:
-        cfg = replace(filt.config, moves_drop_null=True)
-        filt = NoiseCheckedStart(cfg) if isinstance(filt, NoiseCheckedStart) else RBPF(cfg)
+    filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null)
     est, found, _ = run(Y, filt)
     out = []
     for t in at_s:
@@ -95,7 +90,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
         m, s = np.array(e.mean[:3]), np.array(e.std[:3])
         row: dict[str, Any] = {
             "study": what, "sensors": sensors, "seed": seed, "t_s": t, "mode": mode,
-            "moves_drop_null": moves_drop_null,
+            "moves_drop_null": filt.config.moves_drop_null,
             "particles": particles, "truth": theta.tolist(), "mean": m.tolist(),
             "std": s.tolist(), "z": np.round((m - theta) / s, 3).tolist(),
             "err_pct": np.round(100 * (m - theta) / theta, 3).tolist(),
@@ -145,8 +140,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--particles", type=int, default=1000)
     ap.add_argument("--mode", choices=("fast", "exact"), default="fast")
     ap.add_argument("--no-ml", action="store_true", help="paper: skip the ML fits")
-    ap.add_argument("--moves-drop-null", action="store_true",
-                    help="switch the filter's moves_drop_null option on")
+    ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
+                    default=None, help="the filter's moves_drop_null option (default: the "
+                    "filter's own)")
     args = ap.parse_args(argv)
     if args.what == "summary":
         rows = [json.loads(line) for line in sys.stdin if line.strip()]

@@ -69,14 +69,19 @@ Filter = RBPF | NoiseCheckedStart
 
 
 def service_filter(sensors: int, seed: int, particles: int, mode: str,
-                   sensor_noise: str = "measured") -> Filter:
+                   sensor_noise: str = "measured", moves_drop_null: bool | None = None
+                   ) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
-    sensor-noise test)."""
+    sensor-noise test); ``moves_drop_null`` overrides that option of the filter
+    (:class:`gateway.estimator.rbpf_config.RBPFConfig`; None: the default)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
                   mode=mode, sensor_noise=sensor_noise)
     filt = build_estimator(cfg, FS_HZ)
     assert isinstance(filt, (RBPF, NoiseCheckedStart))
-    return filt
+    if moves_drop_null is None or moves_drop_null == filt.config.moves_drop_null:
+        return filt
+    rbpf = replace(filt.config, moves_drop_null=moves_drop_null)
+    return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
 
 
 def run(Y: np.ndarray, filt: Filter, every: int = 100
@@ -122,10 +127,12 @@ def alerts(est: Sequence[Any]) -> list[tuple[float, str, str]]:
 
 def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
-              sensor_noise: str = "measured") -> dict[str, Any]:
+              sensor_noise: str = "measured", moves_drop_null: bool | None = None
+              ) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
     t0 = time.perf_counter()
-    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise))
+    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
+                                    moves_drop_null))
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -139,6 +146,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     alarm = [t - fault_at_s for t, n, sev in raised if n == name and sev == "ALARM"]
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
             "noise_scale": noise_scale, **_noise_columns(filt),
+            "moves_drop_null": filt.config.moves_drop_null,
             "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
             "confirmed_s": round(right[0][3] - fault_at_s, 3) if right else None,
             "detect_s": round(right[0][0] - fault_at_s, 3) if right else None,
@@ -160,13 +168,16 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
 
 
 def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode: str,
-                noise_scale: float = 1.0, sensor_noise: str = "measured") -> dict[str, Any]:
+                noise_scale: float = 1.0, sensor_noise: str = "measured",
+                moves_drop_null: bool | None = None) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
     t0 = time.perf_counter()
-    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise))
+    est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
+                                    moves_drop_null))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
             "noise_scale": noise_scale, **_noise_columns(filt),
+            "moves_drop_null": filt.config.moves_drop_null,
             "particles": particles, "seconds": seconds, "detections": len(found),
             "alerts": len(alerts(est)),
             "detail": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
@@ -287,6 +298,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--fault-at", type=float, default=8.0)
     ap.add_argument("--particles", type=int, default=1000)
     ap.add_argument("--mode", choices=("fast", "exact"), default="fast")
+    ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
+                    default=None, help="the filter's moves_drop_null option (default: the "
+                    "filter's own)")
     args = ap.parse_args(argv)
     if args.what in ("summary", "plot"):
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
@@ -301,12 +315,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 rows = [nominal_row(ns, seed, seconds=args.seconds or 600.0,
                                     particles=args.particles, mode=args.mode,
                                     noise_scale=args.noise_scale,
-                                    sensor_noise=args.sensor_noise)]
+                                    sensor_noise=args.sensor_noise,
+                                    moves_drop_null=args.moves_drop_null)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
                                   mode=args.mode, noise_scale=args.noise_scale,
-                                  sensor_noise=args.sensor_noise)
+                                  sensor_noise=args.sensor_noise,
+                                  moves_drop_null=args.moves_drop_null)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

@@ -11,7 +11,7 @@ log-weights add the filters' predictive log-likelihoods, and when the effective 
 size drops below ``ess_threshold * m`` the particles are resampled (systematic) and
 moved by the Liu-West kernel compounded over the samples since the last move
 (:func:`gateway.estimator.particles.liu_west_move`); a moved particle keeps its
-ancestor's state (optionally less its static-yaw component, ``moves_drop_null``); only
+ancestor's state less its static-yaw component (``moves_drop_null``, the default); only
 then are Phi(theta, v) and Qd(theta, v) recomputed, exactly and batched
 (:mod:`gateway.estimator.batch_expm`). Between moves each particle is an exact Kalman
 filter for fixed theta. See docs/estimator.md.
@@ -757,6 +757,8 @@ def _posterior(w: np.ndarray, z: np.ndarray, x: np.ndarray
 
 def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
     d = dict(d)
+    # a checkpoint from before the option existed moved whole states: it continues so
+    d.setdefault("moves_drop_null", False)
     d["nominal"] = Theta(**d["nominal"])
     d["params"] = VehicleParams(**d["params"])
     d["monitor"] = None if d["monitor"] is None else MonitorConfig(**d["monitor"])

@@ -53,8 +53,9 @@ class RBPFConfig:
     product's figures use 2 s (docs/estimator.md "Start of every filter");
     ``moves_drop_null``: a moved particle keeps its ancestor's state less the component
     along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
-    off by default until the fast-vs-exact, drift and accuracy campaigns are re-measured
-    with it (docs/estimator.md "Start-up lock-in": it removes the 5 s outliers);
+    on by default since 2026-11-25 (docs/estimator.md "Calibration of the stated sigma": it
+    removes the 5 s outliers; the fast-vs-exact, drift, accuracy, detection and
+    start-up campaigns were re-measured with it); False keeps the state whole;
     ``noise_var``: the sensors' white-noise variances (SI units^2, in sensor-set order);
     None: the paper's Qv (:func:`gateway.model.vehicle.measurement_noise`). The service
     measures them at the start of a run (:mod:`gateway.estimator.noisestart`);
@@ -89,7 +90,7 @@ class RBPFConfig:
     mode: str = "exact"
     fast_warmup_s: float = 2.0
     output_every: int = 1
-    moves_drop_null: bool = False
+    moves_drop_null: bool = True
     resample: bool = True
     noise_var: tuple[float, ...] | None = None
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
