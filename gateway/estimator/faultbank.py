@@ -33,7 +33,9 @@ Life cycle: the bank is idle until the cloud has ``start_after_s`` of updated da
 since its filters started and every parameter's posterior std is within
 ``max_rel_std`` of its mean; it starts from the cloud's posterior mean state. After a
 start or a detection it holds its CUSUMs at 0 for ``hold_s``. ``theta_ref`` follows
-the cloud at every resample-move (:meth:`FaultBank.refresh`). Samples without data are
+the cloud at every resample-move (:meth:`FaultBank.refresh`); every state that passes to
+a filter at another theta there, or at a start, loses its static-yaw component first,
+because a moved reference turns it into a false CUSUM rise. Samples without data are
 predicted; the estimator stops the bank at a sample with only some sensors.
 
 State is four arrays (:meth:`FaultBank.arrays`), so checkpoints stay bit-exact; the
@@ -49,7 +51,7 @@ import numpy as np
 
 from gateway.errors import EstimatorError
 from gateway.estimator.batch_expm import DiscreteBatch
-from gateway.estimator.kalman import n_chunks, to_lanes
+from gateway.estimator.kalman import from_lanes, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.steady import (
     NullVectors,
@@ -207,11 +209,17 @@ class FaultBank:
 
     def start(self, theta_ref: np.ndarray, state: np.ndarray) -> None:
         """Start at the cloud's posterior mean ``theta_ref`` (d,) with every filter in the
-        posterior mean ``state`` (16,); the CUSUMs hold for ``hold_s``."""
+        posterior mean ``state`` (16,) less its static-yaw component under ``theta_ref``
+        (the filters run at other thetas); the CUSUMs hold for ``hold_s``."""
+        assert self._model is not None
         self.vec[_ACTIVE] = 1.0
-        self.x[:] = to_lanes(np.repeat(np.asarray(state, dtype=float)[None], self.m, 0))
+        self.vec[_MODE] = _WATCH
+        self.ref = np.array(theta_ref, dtype=float).reshape(self.n_params)
+        x = np.asarray(state, dtype=float)[None]
+        x = without_null(x, self._model[1](self.ref[None, :N_THETA]))
+        self.x[:] = to_lanes(np.repeat(x, self.m, 0))
         self._hold()
-        self.refresh(theta_ref)
+        self._solve()
 
     def _hold(self) -> None:
         self.g[:] = 0.0
@@ -244,6 +252,13 @@ class FaultBank:
         reference at the crossing)."""
         if self.vec[_MODE] == _LOCATE:
             return
+        if self.active and self._model is not None:
+            # each filter's theta moves with the reference: its state loses the component
+            # along its old theta's static-yaw null vector, which the new theta would turn
+            # into a transient the data never had (a false CUSUM rise; steady.without_null)
+            x = from_lanes(self.x, self.m, (NZ,))
+            x = without_null(x, self._model[1](self.hypotheses()[:, :N_THETA]))
+            self.x = to_lanes(x)
         self.ref = np.array(theta_ref, dtype=float).reshape(self.n_params)
         if self.active and self._model is not None:
             self._solve()
