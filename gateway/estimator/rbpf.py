@@ -120,6 +120,8 @@ class RBPF:
         self._data_since_start = 0
         self._bank_check_at = 0
         self._block_len = BLOCK_MIN
+        self._v0_key: tuple[object, object] | None = None
+        self._v0 = np.zeros((0, NZ))
         self._bank = (FaultBank(config.faults, len(config.names), config.fs_hz, config.ar_paper)
                       if config.faults is not None else None)
         self.reset(rng if rng is not None else np.random.default_rng(config.seed))
@@ -233,7 +235,7 @@ class RBPF:
         the full sensor set no longer fit (the exact P would widen), so the exact
         recursion takes over from the steady covariance until ``fast_warmup_s`` of full
         data has passed."""
-        v0 = self._null(self.theta)
+        v0 = self._particle_null()
         P = steady_posterior(self._gains, v0, self._H, self._r, self.config.n_particles)
         self._P = to_lanes(P.reshape(len(P), -1))
         self._steady = False
@@ -262,9 +264,19 @@ class RBPF:
     def _warm_steps(self) -> int:
         return int(round(self.config.fast_warmup_s * self.config.fs_hz)) if self._fast else 0
 
+    def _particle_null(self) -> np.ndarray:
+        """Every particle's unit static-yaw null vector (N, 16) at its theta and v_ref,
+        solved once per cloud and speed: the steady gains and the next move's ancestors
+        share it (each row is its own solve, so a row is the same in any batch)."""
+        if self._v0_key is None or self._v0_key[0] is not self.z \
+                or self._v0_key[1] is not self._null:
+            self._v0 = self._null(self.theta)
+            self._v0_key = (self.z, self._null)
+        return self._v0
+
     def _recompute_gains(self) -> None:
         """Fast mode: every particle's steady-state filter at its theta and v_ref."""
-        v0 = to_lanes(self._null(self.theta))
+        v0 = to_lanes(self._particle_null())
         steady_gains(self._phi, self._qd, v0, self._H, self._r, self._gains)
         self._P = self._gains.p_pred
 
@@ -576,7 +588,7 @@ class RBPF:
         cfg = self.config
         floor = self._floor_log()
         anc = pt.systematic(w, float(self.rng.random()))
-        v0_anc = self._null(self.theta[anc]) if cfg.moves_drop_null else None
+        v0_anc = self._particle_null()[anc] if cfg.moves_drop_null else None
         znew = pt.liu_west_move(self.rng, self.z, w, anc, delta=cfg.delta,
                                 steps=self.since_move, floor_log=floor,
                                 walk_var_log=self._walk_var_log())
