@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (435): the watch, confirm and locate phases share one state vector and
+Over 400 lines (454): the watch, confirm and locate phases share one state vector and
 one set of filters; splitting them would pass that state around.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
@@ -211,12 +211,10 @@ class FaultBank:
         """Start at the cloud's posterior mean ``theta_ref`` (d,) with every filter in the
         posterior mean ``state`` (16,) less its static-yaw component under ``theta_ref``
         (the filters run at other thetas); the CUSUMs hold for ``hold_s``."""
-        assert self._model is not None
         self.vec[_ACTIVE] = 1.0
         self.vec[_MODE] = _WATCH
         self.ref = np.array(theta_ref, dtype=float).reshape(self.n_params)
-        x = np.asarray(state, dtype=float)[None]
-        x = without_null(x, self._model[1](self.ref[None, :N_THETA]))
+        x = self._without_null(np.asarray(state, dtype=float)[None], self.ref[None])
         self.x[:] = to_lanes(np.repeat(x, self.m, 0))
         self._hold()
         self._solve()
@@ -252,16 +250,24 @@ class FaultBank:
         reference at the crossing)."""
         if self.vec[_MODE] == _LOCATE:
             return
-        if self.active and self._model is not None:
+        moving = self.active and self._model is not None
+        if moving:
             # each filter's theta moves with the reference: its state loses the component
             # along its old theta's static-yaw null vector, which the new theta would turn
-            # into a transient the data never had (a false CUSUM rise; steady.without_null)
-            x = from_lanes(self.x, self.m, (NZ,))
-            x = without_null(x, self._model[1](self.hypotheses()[:, :N_THETA]))
-            self.x = to_lanes(x)
+            # into a transient the data never had (a false CUSUM rise)
+            self.x = to_lanes(self._without_null(from_lanes(self.x, self.m, (NZ,)),
+                                                 self.hypotheses()))
         self.ref = np.array(theta_ref, dtype=float).reshape(self.n_params)
-        if self.active and self._model is not None:
+        if moving:
             self._solve()
+
+    def _without_null(self, x: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """States ``x`` (k, 16) less their component along the static-yaw null vectors
+        of the thetas ``theta`` (k, d) they were estimated under, at the current speed
+        (:func:`gateway.estimator.steady.without_null`): every hand-over to a filter at
+        another theta goes through here."""
+        assert self._model is not None
+        return without_null(x, self._model[1](theta[:, :N_THETA]))
 
     def _solve(self) -> None:
         assert self._model is not None and self._gains is not None
@@ -338,10 +344,8 @@ class FaultBank:
         """Filter ``filt``'s state (16,) less its component along the static-yaw null
         vector of its own theta: the state is taken over by filters at other thetas
         (:func:`gateway.estimator.steady.without_null`)."""
-        assert self._model is not None
         x = self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES]
-        v0 = self._model[1](self.hypotheses()[filt:filt + 1, :N_THETA])
-        return without_null(x[None], v0)[0]
+        return self._without_null(x[None], self.hypotheses()[filt:filt + 1])[0]
 
     def _locate(self, best: int, t_s: float) -> None:
         """A confirmed crossing by hypothesis ``best``: every filter restarts from its
