@@ -28,6 +28,17 @@ data, are provisional and not judged; where that look is not sure, until its tes
 5 s) and ends at Csy 15.6-18.6 kNs/m, Csay 1.28-1.51 x and conicity within 12 % of
 nominal (host replay, measured 2026-11-25; the test's live run in the VM bounds Csay
 within 25 %).
+
+How close Csy ends (``CSY_END_REL``): with 64 particles the cloud is still coming down
+from the prior after 8 s, and where it ends varies with the filter's seed and with the
+receive times (the grid's phase). The same log replayed on the host (2026-11-25, after
+a live VM run ended 31 % high against the former 30 % bound): 30 filter seeds, Csy
+−6 % to +43 % off (median +4 %, 3 of 30 beyond 25 %, 1 beyond 30 %); 30 replays with
+the receive times shifted by 0-4 ms and jittered by 0-2 ms per frame, +0 % to +24 %
+(median +8 %). Two live VM runs that day: +31 % and +24 %, both in the top tenth of
+that spread: the VM's receive times may be worse than the jitter tried here (canplayer
+under emulation; not measured). The bound is 50 %: beyond that spread, and far from a
+filter that stayed at nominal (+150 %).
 """
 
 from __future__ import annotations
@@ -44,6 +55,9 @@ DURATION_S = 8.0
 SEED = 3
 CSY_FACTOR = 0.4
 """Truth Csy relative to nominal, the whole run (inside the RBPF's 0.3-2.5 x prior)."""
+CSY_END_REL = 0.5
+"""How far from the truth the last Csy estimate may be (relative): the module docstring
+says how the 64-particle filter's end point spreads."""
 OVERRIDES: dict[str, float | int] = {"resampler.fs_hz": 250.0, "estimator.particles": 64}
 """The service's settings for the test (``section.key``); every other key is the default.
 The worker's queue (5 000 samples, 20 s at 250 Hz) holds the whole run, so a worker

@@ -158,7 +158,7 @@ def test_simulator_to_gateway_estimates_and_alerts(gateway, tmp_path):
     csy = gateway.last("GW_EstCsy").values["GW_EstCsy_Mean"]
     csay = gateway.last("GW_EstCsay").values["GW_EstCsay_Mean"]
     lam = gateway.last("GW_EstConicity").values["GW_EstConicity_Mean"]
-    assert abs(csy / csy_truth - 1) < 0.3, csy
+    assert abs(csy / csy_truth - 1) < e2e_traffic.CSY_END_REL, csy
     assert abs(csay / THETA_NOMINAL.csay_ns_per_m - 1) < 0.25, csay
     assert abs(lam / THETA_NOMINAL.conicity - 1) < 0.25, lam
     # Health: no frame rejected. (FramesDropped also counts samples the estimator's queue
