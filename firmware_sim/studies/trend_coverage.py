@@ -16,26 +16,34 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_sim.fleet import FleetSpec, crossings, trajectory
+from gateway.alerts.policy import default_params
 from gateway.fleet.trend import DAY_S, fit_trend
+from gateway.model.vehicle import PARAM_NAMES
 
-CASES: dict[str, tuple[Callable[[np.ndarray], np.ndarray], float, str]] = {
-    "wheel-wear-lambda": (lambda d: 1.0 + d / 12.0, 1.6, "high"),
-    "nominal-lambda": (lambda d: 1.0 + 0.1 * d / 12.0, 1.6, "high"),
-    "csy-degrading": (lambda d: 1.0 - 0.3 * d / 12.0, 0.75, "low"),
+HORIZON_DAYS = 120.0
+"""Long enough for every case's crossing (the fleet-wide λ crosses at day 72)."""
+
+SPEC = FleetSpec(degrade_days=12.0)
+"""The demo's fleet (``railgw fleet demo``: ``--degrade-days 12``)."""
+CASES: dict[str, tuple[str, str, str]] = {
+    "wheel-wear-lambda": ("wheel-wear", "conicity", "high"),
+    "nominal-lambda": ("nominal", "conicity", "high"),
+    "csy-degrading": ("csy-degrading", "csy_ns_per_m", "low"),
 }
-"""name -> (truth relative to nominal at days since the start, threshold, side): the
-simulated fleet's ``--degrade-days 12`` lines and the advisory thresholds."""
+"""name -> (the simulated fleet's role, parameter, threshold side): its truth lines
+(:func:`firmware_sim.fleet.trajectory`) against the advisory thresholds."""
 
 
 @dataclass(frozen=True)
 class Coverage:
-    """``covered`` of ``predicted`` intervals bracketed the true crossing; ``early`` of the
-    misses lay before the truth (the interval was late)."""
+    """``covered`` of ``predicted`` intervals bracketed the true crossing; of the misses,
+    ``truth_before`` had the truth before the interval (the interval was late)."""
 
     case: str
     s0: float
@@ -43,30 +51,27 @@ class Coverage:
     bias: float
     predicted: int
     covered: int
-    early: int
+    truth_before: int
 
     @property
     def rate(self) -> float:
         return self.covered / self.predicted if self.predicted else math.nan
 
 
-def true_crossing_s(case: str) -> float:
-    """The truth line's crossing, s after the start."""
-    rel, thr, side = CASES[case]
-    a, b = float(rel(np.array([0.0]))[0]), float(rel(np.array([1.0]))[0]) - float(
-        rel(np.array([0.0]))[0])
-    return (thr - a) / b * DAY_S if (b > 0) == (side == "high") else math.inf
-
-
 def coverage(case: str, *, s0: float, k: float, bias: float, reps: int,
              rng: np.random.Generator, days: int = 30) -> Coverage:
     """``reps`` synthetic units of ``case``: how many predicted crossings bracket the truth."""
-    rel, thr, side = CASES[case]
-    t_true = true_crossing_s(case)
-    predicted = covered = early = 0
+    role, name, side = CASES[case]
+    j = PARAM_NAMES.index(name)
+    thr = default_params()[name].levels(side)[0]
+    rel = trajectory(role, SPEC)
+    t_true = crossings(rel, SPEC, HORIZON_DAYS)[name]["advisory"]
+    assert thr is not None and t_true is not None, case
+    t_true -= SPEC.t_start_s
+    predicted = covered = truth_before = 0
     for _ in range(reps):
         d = np.arange(days) + (6.0 + rng.uniform(0.0, 1.0, days)) / 24.0
-        truth = rel(d)
+        truth = rel(d)[:, j]
         std = s0 * truth
         est = truth * (1.0 + bias + k * s0 * rng.standard_normal(days))
         tr = fit_trend(d * DAY_S, est, std, thr, side)
@@ -76,8 +81,8 @@ def coverage(case: str, *, s0: float, k: float, bias: float, reps: int,
         if tr.crossing_lo_s <= t_true <= tr.crossing_hi_s:
             covered += 1
         elif t_true < tr.crossing_lo_s:
-            early += 1
-    return Coverage(case, s0, k, bias, predicted, covered, early)
+            truth_before += 1
+    return Coverage(case, s0, k, bias, predicted, covered, truth_before)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -94,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 for bias in (0.0, -0.005):
                     c = coverage(case, s0=s0, k=k, bias=bias, reps=args.reps, rng=rng)
                     print(f"{case:18s} {s0:.2f} {k:4.1f} {bias:+.3f} {c.predicted:9d} "
-                          f"{c.covered:8d}  {c.rate:.3f} {c.early:6d}", flush=True)
+                          f"{c.covered:8d}  {c.rate:.3f} {c.truth_before:6d}", flush=True)
     return 0
 
 
