@@ -73,6 +73,11 @@ class EstimatorConfig:
     (:mod:`gateway.estimator.noisestart`); ``"model"`` keeps the paper's Qv. "measured"
     needs white noise on the grid: the resampler's low-pass filters off, and its
     interpolation "sinc" or "nearest".
+    ``start_ramp_s``: after every filter start, the data's weight on the particles rises
+    from 0 to full over this much data (s), so that the vehicle's state at the start (at
+    rest, or running) cannot pull the cloud onto a wrong value and the information comes
+    in at a rate the particles can follow (docs/estimator.md "Calibration of the stated
+    sigma"); 0 weighs every sample fully (the paper).
     """
 
     particles: int = 1000
@@ -82,6 +87,7 @@ class EstimatorConfig:
     track_roughness: float = 2 * 0.33e-3
     estimate_track_roughness: bool = False
     drift_per_sqrt_s: float = 0.01
+    start_ramp_s: float = 1.0
     sensor_noise: str = "measured"
     output_rate_hz: float = 10.0
     checkpoint_interval_s: float = 5.0
@@ -236,6 +242,8 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     ("estimator", "estimate_track_roughness"): OneOf((False, True)),
     # the estimator refuses >= 1/sqrt(s); beyond 0.5 the parameters are noise
     ("estimator", "drift_per_sqrt_s"): Range(0.0, 0.5),
+    # a few seconds at most: the weights learn slowly while it lasts
+    ("estimator", "start_ramp_s"): Range(0.0, 5.0),
     # at most fs_hz (checked below)
     ("estimator", "output_rate_hz"): Range(0.01, 1000.0),
     ("estimator", "checkpoint_interval_s"): Range(0.1, 86_400.0),

@@ -65,3 +65,30 @@ def test_box_draws_lie_in_the_prior_box() -> None:
         th = box_theta(seed)
         assert ((th >= lo) & (th <= hi)).all(), (seed, th)
     assert not (box_theta(1) == box_theta(2)).all()
+
+
+def test_a_record_from_rest_is_another_truth_start_and_the_default_is_unchanged() -> None:
+    """``record`` gives the simulator's usual truth (stationary vibration from the first
+    sample: ``measured``, bit for bit) unless ``from_rest``; then the truth starts at
+    rest and the first samples are sensor noise about zero (the states build up), while
+    the running vehicle's are not. The summary keeps the two apart."""
+    import numpy as np
+
+    from firmware_sim.studies.calibration import record
+    from firmware_sim.truth import measured
+    from gateway.model.vehicle import THETA_SEC42, measurement_noise, sensor_set
+
+    theta, n = THETA_SEC42.as_array(), 500
+    running = record(theta, 3, 7, n / 1000.0)
+    same = measured(np.repeat(theta[None], n, 0), np.full(n, 42.5), 1000.0, sensor_set(3),
+                    np.random.default_rng(7))
+    assert np.array_equal(running, same)
+    rest = record(theta, 3, 7, n / 1000.0, from_rest=True)
+    noise_sd = np.sqrt(np.diag(measurement_noise(3)))
+    first = slice(0, 5)           # 5 ms: a vehicle at rest has not moved yet
+    assert np.all(np.abs(rest[first]) < 5 * noise_sd)
+    assert np.sqrt(np.mean(running[first] ** 2, axis=0)).max() > \
+        np.sqrt(np.mean(rest[first] ** 2, axis=0)).max()
+    rows = [{"study": "paper", "sensors": 3, "t_s": 5.0, "z": [0.0, 0.0, 0.0],
+             "from_rest": fr} for fr in (False, True)]
+    assert [r["from_rest"] for r in summary(rows)] == [False, True]

@@ -185,14 +185,16 @@ def _samples(Y: np.ndarray) -> list[Sample]:
     return [Sample(t_s=k / FS_HZ, values=Y[k], speed_mps=V_MPS) for k in range(len(Y))]
 
 
-def test_checkpoint_and_restore_are_bit_exact_in_fast_mode() -> None:
-    """Checkpoints in the exact warm-up, in the steady phase and in the exact hand-over
-    of a sensor outage (sensor 1 missing for 0.1 s) continue bit for bit."""
+@pytest.mark.parametrize("start_ramp_s", [0.0, 0.2])
+def test_checkpoint_and_restore_are_bit_exact_in_fast_mode(start_ramp_s: float) -> None:
+    """Checkpoints in the exact warm-up (with ``start_ramp_s`` = 0.2: inside the start's
+    likelihood ramp), in the steady phase and in the exact hand-over of a sensor outage
+    (sensor 1 missing for 0.1 s) continue bit for bit."""
     Y = _outputs(2600, 3, seed=4)
     Y[1600:1700, 1] = np.nan
     S = _samples(Y)
     cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=64, sensors=3, seed=1, mode="fast",
-                     fast_warmup_s=0.3)
+                     fast_warmup_s=0.3, start_ramp_s=start_ramp_s)
     filt = RBPF(cfg)
     for cut in (150, 1500, 1650):
         filt = RBPF(cfg)
@@ -243,13 +245,17 @@ def test_fast_mode_recovers_the_truth_like_the_exact_mode() -> None:
     assert (np.median(gaps, axis=0) < 0.5).all(), seen
 
 
-@pytest.mark.parametrize(("mode", "n_sensors"), [("fast", 3), ("fast", 5), ("exact", 3)])
-def test_blocks_of_samples_equal_stepping_one_by_one(mode: str, n_sensors: int) -> None:
+@pytest.mark.parametrize(("mode", "n_sensors", "start_ramp_s"),
+                         [("fast", 3, 0.0), ("fast", 5, 0.0), ("exact", 3, 0.0),
+                          ("fast", 3, 0.25), ("exact", 3, 0.25)])
+def test_blocks_of_samples_equal_stepping_one_by_one(mode: str, n_sensors: int,
+                                                     start_ramp_s: float) -> None:
     """RBPF.run steps uneventful runs of samples in one compiled call (the steady kernel,
     or the exact one in exact mode and fast mode's warm-up); stepping every sample
     through step() gives the same floats: estimates, resamples, detections, the fault
     bank's start and the whole filter state at the end (its checkpoint), including a gap
-    of predict-only samples, one with a missing sensor and a speed step."""
+    of predict-only samples, one with a missing sensor and a speed step; also with the
+    start's likelihood ramp (``start_ramp_s``), which ends inside a block."""
     Y = _outputs(4000, n_sensors, seed=8)
     S = _samples(Y)
     for k in (2600, 3300):        # the second stops the running fault bank, which restarts
@@ -259,7 +265,7 @@ def test_blocks_of_samples_equal_stepping_one_by_one(mode: str, n_sensors: int) 
     for k in range(3500, 4000):
         S[k] = Sample(S[k].t_s, Y[k], V_MPS * 1.01)
     cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=200, sensors=n_sensors, seed=3, mode=mode,
-                     fast_warmup_s=0.5)
+                     fast_warmup_s=0.5, start_ramp_s=start_ramp_s)
     a = RBPF(cfg).run(S, output_every=37)
     one = RBPF(cfg)
     b = [e for k, s in enumerate(S) if (e := one.step(s)) and (k + 1) % 37 == 0]

@@ -15,7 +15,11 @@ filter's z-score ``(mean - truth) / sigma`` and ``sigma / sigma_ML``.
 nominal) and runs 10 s (start-up: is the lock-in gone everywhere in the box?); no ML fit.
 
 ``--moves-drop-null`` / ``--no-moves-drop-null`` runs the filter with that option of
-:class:`gateway.estimator.rbpf_config.RBPFConfig` on or off (default: the filter's own).
+:class:`gateway.estimator.rbpf_config.RBPFConfig` on or off (default: the filter's own),
+``--start-ramp-s`` with that ``start_ramp_s`` (default: the service's). ``--at-s`` sets
+the check times (the record lasts until the last one).
+``--from-rest`` starts the truth at rest instead of in stationary vibration (another
+simulator's convention; :func:`firmware_sim.truth.simulate` ``burn_in_s`` = 0).
 
 ``summary < rows.jsonl`` gives, per (study, option, sensors, time): the share of records
 with the truth inside +-2 sigma per parameter, the largest |z|, and the smallest
@@ -36,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
-from firmware_sim.truth import measured
+from firmware_sim.truth import add_sensor_noise, select, simulate
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
@@ -47,12 +51,17 @@ BOX_AT_S = (10.0,)
 SEED_OFFSET = {"paper": 3000, "box": 4000}
 
 
-def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float) -> np.ndarray:
-    """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz, 42.5 m/s."""
+def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float,
+           from_rest: bool = False) -> np.ndarray:
+    """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz, 42.5 m/s,
+    in stationary vibration from the first sample, or ``from_rest``."""
     n = int(round(seconds * FS_HZ))
-    return measured(np.repeat(np.asarray(theta, dtype=float)[None], n, 0),
-                    np.full(n, V_MPS), FS_HZ, sensor_set(sensors),
-                    np.random.default_rng(data_seed))
+    rng = np.random.default_rng(data_seed)
+    names = sensor_set(sensors)
+    theta_t, speed_t = np.repeat(np.asarray(theta, dtype=float)[None], n, 0), np.full(n, V_MPS)
+    run_ = (simulate(theta_t, speed_t, FS_HZ, rng, burn_in_s=0.0) if from_rest
+            else simulate(theta_t, speed_t, FS_HZ, rng))
+    return add_sensor_noise(select(run_.outputs, names), names, rng)
 
 
 def box_theta(seed: int) -> np.ndarray:
@@ -74,15 +83,18 @@ def ml_fit(Y: np.ndarray, sensors: int, seconds: float) -> tuple[list[float], li
 
 def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              ml: bool, at_s: Sequence[float] | None = None,
-             moves_drop_null: bool | None = None) -> list[dict[str, Any]]:
+             moves_drop_null: bool | None = None, from_rest: bool = False,
+             start_ramp_s: float | None = None) -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
-    None: the default)."""
+    None: the default), and ``start_ramp_s`` that one; ``from_rest``: the truth starts at
+    rest."""
     theta = THETA_SEC42.as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
-    Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s))
-    filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null)
+    Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest)
+    filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
+                          start_ramp_s=start_ramp_s)
     est, found, _ = run(Y, filt)
     out = []
     for t in at_s:
@@ -91,6 +103,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
         row: dict[str, Any] = {
             "study": what, "sensors": sensors, "seed": seed, "t_s": t, "mode": mode,
             "moves_drop_null": filt.config.moves_drop_null,
+            "from_rest": from_rest, "start_ramp_s": filt.config.start_ramp_s,
             "particles": particles, "truth": theta.tolist(), "mean": m.tolist(),
             "std": s.tolist(), "z": np.round((m - theta) / s, 3).tolist(),
             "err_pct": np.round(100 * (m - theta) / theta, 3).tolist(),
@@ -108,15 +121,18 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (study, option, sensors, t_s): records; per parameter the share with |z| <= 2, the
     largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
-    def key_of(r: dict[str, Any]) -> tuple[str, bool, int, float]:
-        return r["study"], bool(r.get("moves_drop_null", False)), r["sensors"], r["t_s"]
+    def key_of(r: dict[str, Any]) -> tuple[str, bool, float, bool, int, float]:
+        return (r["study"], bool(r.get("moves_drop_null", False)),
+                float(r.get("start_ramp_s", 0.0)), bool(r.get("from_rest", False)),
+                r["sensors"], r["t_s"])
 
     out = []
     for key in sorted({key_of(r) for r in rows}):
         case = [r for r in rows if key_of(r) == key]
         z = np.abs(np.array([r["z"] for r in case]))
-        row: dict[str, Any] = {"study": key[0], "moves_drop_null": key[1], "sensors": key[2],
-                               "t_s": key[3], "records": len(case)}
+        row: dict[str, Any] = {"study": key[0], "moves_drop_null": key[1],
+                               "start_ramp_s": key[2], "from_rest": key[3],
+                               "sensors": key[4], "t_s": key[5], "records": len(case)}
         for i, name in enumerate(PARAM_NAMES):
             row[f"{name}_within_2sigma"] = round(float(np.mean(z[:, i] <= 2.0)), 3)
             row[f"{name}_max_abs_z"] = round(float(z[:, i].max()), 2)
@@ -143,6 +159,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
                     default=None, help="the filter's moves_drop_null option (default: the "
                     "filter's own)")
+    ap.add_argument("--start-ramp-s", type=float, default=None,
+                    help="the filter's start_ramp_s (default: the service's)")
+    ap.add_argument("--at-s", type=float, nargs="+", default=None,
+                    help="check times in s (default: paper 5 20, box 10)")
+    ap.add_argument("--from-rest", action="store_true",
+                    help="the truth starts at rest (default: in stationary vibration)")
     args = ap.parse_args(argv)
     if args.what == "summary":
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
@@ -153,7 +175,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for ns in args.sensors:
             for row in rows_for(args.what, seed, ns, args.particles, args.mode,
                                 ml=args.what == "paper" and not args.no_ml,
-                                moves_drop_null=args.moves_drop_null):
+                                at_s=args.at_s, moves_drop_null=args.moves_drop_null,
+                                from_rest=args.from_rest, start_ramp_s=args.start_ramp_s):
                 print(json.dumps(row), flush=True)
     return 0
 

@@ -69,18 +69,23 @@ Filter = RBPF | NoiseCheckedStart
 
 
 def service_filter(sensors: int, seed: int, particles: int, mode: str,
-                   sensor_noise: str = "measured", moves_drop_null: bool | None = None
-                   ) -> Filter:
+                   sensor_noise: str = "measured", moves_drop_null: bool | None = None,
+                   start_ramp_s: float | None = None) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
-    sensor-noise test); ``moves_drop_null`` overrides that option of the filter
-    (:class:`gateway.estimator.rbpf_config.RBPFConfig`; None: the default)."""
+    sensor-noise test, the start's likelihood ramp); ``moves_drop_null`` and
+    ``start_ramp_s`` override those options of the filter
+    (:class:`gateway.estimator.rbpf_config.RBPFConfig`; None: the service's)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
                   mode=mode, sensor_noise=sensor_noise)
     filt = build_estimator(cfg, FS_HZ)
     assert isinstance(filt, (RBPF, NoiseCheckedStart))
-    if moves_drop_null is None or moves_drop_null == filt.config.moves_drop_null:
+    rbpf = replace(filt.config,
+                   moves_drop_null=(filt.config.moves_drop_null if moves_drop_null is None
+                                    else moves_drop_null),
+                   start_ramp_s=(filt.config.start_ramp_s if start_ramp_s is None
+                                 else start_ramp_s))
+    if rbpf == filt.config:
         return filt
-    rbpf = replace(filt.config, moves_drop_null=moves_drop_null)
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
 
 

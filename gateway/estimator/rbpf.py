@@ -91,7 +91,8 @@ PRIOR_SAMPLES = 2**13
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
-            "_subset_run", "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at")
+            "_subset_run", "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
+            "_ramp_done")
 
 
 class RBPF:
@@ -106,6 +107,7 @@ class RBPF:
         self._fast = config.mode == "fast"
         self._steady = False
         self._warm_left = 0
+        self._ramp_done = 0
         self._subset_run = 0
         self._at_prior = False
         self._prior_v = float("nan")
@@ -200,6 +202,7 @@ class RBPF:
             self._gains = SteadyGains.empty(self._nch, self.ny)
             self._steady = False
             self._warm_left = self._warm_steps()
+            self._ramp_done = 0
             self._p0_set = True
             self._at_prior, self._prior_v = True, self._v_ref
         self._recompute()
@@ -263,6 +266,15 @@ class RBPF:
 
     def _warm_steps(self) -> int:
         return int(round(self.config.fast_warmup_s * self.config.fs_hz)) if self._fast else 0
+
+    def _ramp(self, ll: np.ndarray, with_data: np.ndarray) -> None:
+        """Scale the log-likelihoods ``ll`` (k, lanes) of samples inside ``start_ramp_s``
+        after a filter start by c / n (c-th sample with data since the start, ``with_data``
+        (k,) marks them; n samples in the ramp): :class:`RBPFConfig`."""
+        n = int(round(self.config.start_ramp_s * self.config.fs_hz))
+        if self._ramp_done < n:
+            c = self._ramp_done + np.cumsum(with_data)
+            ll *= np.minimum(c / n, 1.0)[:, None]
 
     def _particle_null(self) -> np.ndarray:
         """Every particle's unit static-yaw null vector (N, 16) at its theta and v_ref,
@@ -340,13 +352,15 @@ class RBPF:
             self._leave_steady()
             kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
                     self._P0, self._ll, self._nis, self._dead)
+        used = bool(use.any())
+        self._ramp(self._ll[None], np.array([used]))
+        self._ramp_done += int(used)
         m = self.config.n_particles
         self.logw, w, total, ess, nis = pt.absorb(self.logw, self._ll, self._nis,
                                                    self._weights())
         self.t_s = float(sample.t_s)
         self.n_steps += 1
         self.since_move += int(not waiting)
-        used = bool(use.any())
         self.updated_since_move += int(used)
         self._w_cache, self._w_of = w, self.logw
         if not np.isfinite(total):
@@ -518,6 +532,7 @@ class RBPF:
                 bank.scan(Y[:took], full[:took], samples[0].t_s, 1.0 / cfg.fs_hz)
         if took:
             self._data_since_start += int(full[:took].sum())
+            self._ramp_done += int(full[:took].sum())
             self.logw = logw
             self._w_cache, self._w_of = w, logw
             self.t_s = float(samples[took - 1].t_s)
@@ -551,6 +566,7 @@ class RBPF:
         else:
             kf_block(self._X, self._P, self._phi, self._qd, self._H, self._r, Y, full,
                      self._P0, LL, NIS)
+        self._ramp(LL, full)
 
     # ------------------------------------------------------- resampling etc.
     def _floor_log(self) -> np.ndarray:
@@ -625,6 +641,7 @@ class RBPF:
             self._P = self._own_prior()
             self._steady = False
             self._warm_left = self._warm_steps()
+            self._ramp_done = 0
             self._at_prior, self._prior_v = True, self._v_ref
         elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])

@@ -56,6 +56,13 @@ class RBPFConfig:
     on by default since 2026-11-25 (docs/estimator.md "Calibration of the stated sigma": it
     removes the 5 s outliers; the fast-vs-exact, drift, accuracy, detection and
     start-up campaigns were re-measured with it); False keeps the state whole;
+    ``start_ramp_s``: after every filter start, the particles' log-likelihoods are scaled
+    by a weight rising linearly from 0 to 1 over this much data (s of samples with data):
+    the first samples, whose likelihood rests on the assumed state level at the start
+    (a running vehicle's), count less, and the data's information enters at a rate the
+    resample-moves can follow; 0 (default, the paper) weighs every sample fully; the
+    service uses 1 s (:class:`gateway.config.EstimatorConfig`; docs/estimator.md
+    "Calibration of the stated sigma");
     ``noise_var``: the sensors' white-noise variances (SI units^2, in sensor-set order);
     None: the paper's Qv (:func:`gateway.model.vehicle.measurement_noise`). The service
     measures them at the start of a run (:mod:`gateway.estimator.noisestart`);
@@ -91,6 +98,7 @@ class RBPFConfig:
     fast_warmup_s: float = 2.0
     output_every: int = 1
     moves_drop_null: bool = True
+    start_ramp_s: float = 0.0
     resample: bool = True
     noise_var: tuple[float, ...] | None = None
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
@@ -111,6 +119,9 @@ class RBPFConfig:
                 or not all(np.isfinite(v) and v > 0 for v in self.noise_var)):
             raise EstimatorError(f"expected {len(names)} positive noise variances for "
                                  f"{names}, got {self.noise_var}")
+        if not 0.0 <= self.start_ramp_s <= 60.0:
+            raise EstimatorError(f"expected start_ramp_s in [0, 60] s, got "
+                                 f"{self.start_ramp_s}")
         if self.mode not in MODES:
             raise EstimatorError(f"expected mode 'exact' or 'fast', got {self.mode!r}")
         if self.floor_reference not in ("nominal", "value"):

@@ -39,7 +39,8 @@ def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
     rbpf = RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
                       seed=cfg.seed, ar_paper=cfg.track_roughness,
                       estimate_ar=cfg.estimate_track_roughness,
-                      walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode)
+                      walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode,
+                      start_ramp_s=cfg.start_ramp_s)
     return NoiseCheckedStart(rbpf) if cfg.sensor_noise == "measured" else RBPF(rbpf)
 
 
