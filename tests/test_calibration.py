@@ -33,16 +33,22 @@ def test_stated_sigma_covers_the_truth_and_is_not_below_the_ml_sigma(sensors: in
 @pytest.mark.slow
 def test_dropping_the_null_component_at_moves_removes_a_start_up_outlier() -> None:
     """5 sensors, paper scenario, the campaign's worst record (seed 10, 20 s long) read at
-    5 s: with whole states at the moves (``moves_drop_null=False``, the default until
-    2026-11-25) the filter stands at Csy +12 % and lambda +9.7 %, 6.6 and 6.0 sigma from
-    the truth. The service's filter (the static-yaw component dropped at the moves) has
-    Csy back within 3 sigma and lambda at 3.9 sigma: reduced, not gone; every parameter
-    within the issue's 4 sigma bound for a single case."""
+    5 s, without the start's likelihood ramp (``start_ramp_s`` = 0, the service's filter
+    until 2026-11-26): with whole states at the moves (``moves_drop_null=False``, the
+    default until 2026-11-25) the filter stands at Csy +12 % and lambda +9.7 %, 6.6 and
+    6.0 sigma from the truth; with the static-yaw component dropped at the moves Csy is
+    back within 3 sigma and lambda at 3.9 sigma: reduced, not gone. The service's filter
+    today (both) is within 4 sigma on every parameter, the issue's bound for a single
+    case (the ramp alone removes this outlier too: docs/estimator.md "Calibration of the
+    stated sigma")."""
     at = (5.0, 20.0)                      # the record's length decides its noise draw
-    row = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at)[0]
-    assert row["moves_drop_null"] and row["t_s"] == 5.0
+    service = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at)[0]
+    assert service["moves_drop_null"] and service["start_ramp_s"] > 0
+    assert service["t_s"] == 5.0 and all(abs(z) <= 4.0 for z in service["z"]), service
+    row = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at, start_ramp_s=0.0)[0]
     assert abs(row["z"][0]) <= 3.0 and all(abs(z) <= 4.0 for z in row["z"]), row
-    whole = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at, moves_drop_null=False)[0]
+    whole = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at, moves_drop_null=False,
+                     start_ramp_s=0.0)[0]
     assert abs(whole["z"][0]) > 4.0 and abs(whole["z"][2]) > 4.0, whole
 
 
