@@ -135,9 +135,14 @@ def _validate(theta_t: np.ndarray, speed_t: np.ndarray, fs_hz: float) -> None:
         raise InputError("expected positive speeds and parameters throughout the run")
 
 
+BURN_IN_S = 10.0
+"""Run-in (s) before a simulated run's first sample, so that it starts in (near)
+stationary vibration."""
+
+
 def simulate(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
              rng: np.random.Generator, *, params: VehicleParams | None = None,
-             ar_paper: float = AR_PAPER_DEFAULT, burn_in_s: float = 10.0,
+             ar_paper: float = AR_PAPER_DEFAULT, burn_in_s: float = BURN_IN_S,
              dampers: NonlinearDampers | None = None,
              x0: np.ndarray | None = None) -> TruthRun:
     """Simulate the truth at ``fs_hz`` for theta_t (T, 3) and speed (T,).
@@ -216,10 +221,12 @@ def add_sensor_noise(outputs: np.ndarray, sensors: tuple[str, ...], rng: np.rand
 def measured(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
              sensors: tuple[str, ...], rng: np.random.Generator, *,
              ar_paper: float = AR_PAPER_DEFAULT,
-             noise_var: dict[str, float] | None = None) -> np.ndarray:
-    """What the sensors read (T, ny): :func:`simulate` from rest, then
-    :func:`add_sensor_noise` on the ``sensors`` columns, both drawing from ``rng``."""
-    run = simulate(theta_t, speed_mps_t, fs_hz, rng, ar_paper=ar_paper)
+             noise_var: dict[str, float] | None = None,
+             burn_in_s: float = BURN_IN_S) -> np.ndarray:
+    """What the sensors read (T, ny): :func:`simulate` from rest (after ``burn_in_s`` of
+    run-in; 0: the first sample is at rest), then :func:`add_sensor_noise` on the
+    ``sensors`` columns, both drawing from ``rng``."""
+    run = simulate(theta_t, speed_mps_t, fs_hz, rng, ar_paper=ar_paper, burn_in_s=burn_in_s)
     return add_sensor_noise(select(run.outputs, sensors), sensors, rng, noise_var)
 
 

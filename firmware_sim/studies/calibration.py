@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
-from firmware_sim.truth import add_sensor_noise, select, simulate
+from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
@@ -56,12 +56,10 @@ def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float,
     """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz, 42.5 m/s,
     in stationary vibration from the first sample, or ``from_rest``."""
     n = int(round(seconds * FS_HZ))
-    rng = np.random.default_rng(data_seed)
-    names = sensor_set(sensors)
-    theta_t, speed_t = np.repeat(np.asarray(theta, dtype=float)[None], n, 0), np.full(n, V_MPS)
-    run_ = (simulate(theta_t, speed_t, FS_HZ, rng, burn_in_s=0.0) if from_rest
-            else simulate(theta_t, speed_t, FS_HZ, rng))
-    return add_sensor_noise(select(run_.outputs, names), names, rng)
+    return measured(np.repeat(np.asarray(theta, dtype=float)[None], n, 0),
+                    np.full(n, V_MPS), FS_HZ, sensor_set(sensors),
+                    np.random.default_rng(data_seed),
+                    burn_in_s=0.0 if from_rest else BURN_IN_S)
 
 
 def box_theta(seed: int) -> np.ndarray:

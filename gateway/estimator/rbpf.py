@@ -92,7 +92,7 @@ _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
             "_subset_run", "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
-            "_ramp_done")
+            "_ramp_from")
 
 
 class RBPF:
@@ -107,7 +107,8 @@ class RBPF:
         self._fast = config.mode == "fast"
         self._steady = False
         self._warm_left = 0
-        self._ramp_done = 0
+        self._ramp_from = 0
+        self._ramp_n = int(round(config.start_ramp_s * config.fs_hz))
         self._subset_run = 0
         self._at_prior = False
         self._prior_v = float("nan")
@@ -202,7 +203,7 @@ class RBPF:
             self._gains = SteadyGains.empty(self._nch, self.ny)
             self._steady = False
             self._warm_left = self._warm_steps()
-            self._ramp_done = 0
+            self._ramp_from = self._data_since_start
             self._p0_set = True
             self._at_prior, self._prior_v = True, self._v_ref
         self._recompute()
@@ -267,14 +268,18 @@ class RBPF:
     def _warm_steps(self) -> int:
         return int(round(self.config.fast_warmup_s * self.config.fs_hz)) if self._fast else 0
 
+    @property
+    def _in_ramp(self) -> bool:
+        """Whether the data since the last filter start are still inside ``start_ramp_s``
+        (:class:`RBPFConfig`)."""
+        return self._data_since_start - self._ramp_from < self._ramp_n
+
     def _ramp(self, ll: np.ndarray, with_data: np.ndarray) -> None:
-        """Scale the log-likelihoods ``ll`` (k, lanes) of samples inside ``start_ramp_s``
-        after a filter start by c / n (c-th sample with data since the start, ``with_data``
-        (k,) marks them; n samples in the ramp): :class:`RBPFConfig`."""
-        n = int(round(self.config.start_ramp_s * self.config.fs_hz))
-        if self._ramp_done < n:
-            c = self._ramp_done + np.cumsum(with_data)
-            ll *= np.minimum(c / n, 1.0)[:, None]
+        """Scale the log-likelihoods ``ll`` (k, lanes) of the next samples, ``with_data``
+        (k,), by c / n while inside the ramp (c-th sample with data since the filter
+        start, n samples in the ramp)."""
+        c = self._data_since_start - self._ramp_from + np.cumsum(with_data)
+        ll *= np.minimum(c / self._ramp_n, 1.0)[:, None]
 
     def _particle_null(self) -> np.ndarray:
         """Every particle's unit static-yaw null vector (N, 16) at its theta and v_ref,
@@ -353,8 +358,8 @@ class RBPF:
             kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
                     self._P0, self._ll, self._nis, self._dead)
         used = bool(use.any())
-        self._ramp(self._ll[None], np.array([used]))
-        self._ramp_done += int(used)
+        if self._in_ramp:
+            self._ramp(self._ll[None], np.array([used]))
         m = self.config.n_particles
         self.logw, w, total, ess, nis = pt.absorb(self.logw, self._ll, self._nis,
                                                    self._weights())
@@ -532,7 +537,6 @@ class RBPF:
                 bank.scan(Y[:took], full[:took], samples[0].t_s, 1.0 / cfg.fs_hz)
         if took:
             self._data_since_start += int(full[:took].sum())
-            self._ramp_done += int(full[:took].sum())
             self.logw = logw
             self._w_cache, self._w_of = w, logw
             self.t_s = float(samples[took - 1].t_s)
@@ -566,7 +570,8 @@ class RBPF:
         else:
             kf_block(self._X, self._P, self._phi, self._qd, self._H, self._r, Y, full,
                      self._P0, LL, NIS)
-        self._ramp(LL, full)
+        if self._in_ramp:
+            self._ramp(LL, full)
 
     # ------------------------------------------------------- resampling etc.
     def _floor_log(self) -> np.ndarray:
@@ -641,7 +646,7 @@ class RBPF:
             self._P = self._own_prior()
             self._steady = False
             self._warm_left = self._warm_steps()
-            self._ramp_done = 0
+            self._ramp_from = self._data_since_start
             self._at_prior, self._prior_v = True, self._v_ref
         elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
