@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from firmware_sim.studies.calibration import SEED_OFFSET, record
-from firmware_sim.studies.grid_posterior import grid_posterior, summary
+from firmware_sim.studies.grid_posterior import grid_posterior, main, summary
 from gateway.model.vehicle import THETA_SEC42
 
 
@@ -47,3 +47,18 @@ def test_summary_counts_the_shares_per_case() -> None:
     assert row["csay_ns_per_m_within_95"] == 0.5
     assert row["conicity_within_95"] == 1.0
     assert row["csy_ns_per_m_max_abs_z"] == 2.5
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["run", "--points", "7"], "even --points"),
+    (["run", "--at-s", "0"], "--at-s > 0"),
+    (["run", "--half-log", "0.1", "0", "0.1"], "positive --half-log"),
+])
+def test_the_command_refuses_bad_options_with_one_line(
+        argv: list[str], says: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """A bad option is an argparse error (exit 2) naming what was expected and got,
+    before any record is made."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv + ["--seeds", "1"])
+    assert stop.value.code == 2
+    assert says in capsys.readouterr().err

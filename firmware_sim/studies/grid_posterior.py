@@ -144,6 +144,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "by sqrt(5 s / at_s))")
     ap.add_argument("--points", type=int, default=24, help="grid values per parameter")
     args = ap.parse_args(argv)
+    if args.points < 2 or args.points % 2:
+        ap.error(f"expected an even --points >= 2 (the truth sits between the two middle "
+                 f"values), got {args.points}")
+    if not args.at_s > 0:
+        ap.error(f"expected --at-s > 0 s, got {args.at_s}")
+    if args.half_log is not None and not all(h > 0 for h in args.half_log):
+        ap.error(f"expected three positive --half-log values, got {args.half_log}")
     if args.what == "summary":
         for row in summary([json.loads(line) for line in sys.stdin if line.strip()]):
             print(json.dumps(row))
