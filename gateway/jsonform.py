@@ -13,7 +13,9 @@ read back as NaN (:func:`number`). Enums are written by name (``"ALARM"``, ``"RA
 - alert: ``{"seq", "t_s", "parameter", "severity", "state", "code", "value_rel",
   "message"}``;
 - estimate: ``{"t_s", "ess", "updated", "provisional", "v_sy_mps", "v_say_mps", "params": {name:
-  {"mean", "std"}}}`` (:func:`params_json` is the ``params`` part alone).
+  {"mean", "std"}}, "located"}`` (:func:`params_json` is the ``params`` part alone;
+  ``located`` null, or the fault bank's change ``{"t_s", "parameter", "rel", "rel_lo",
+  "rel_hi"}``, :func:`located_json`).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from gateway.records import Alert, AlertState, Estimate, Severity
+from gateway.records import Alert, AlertState, Estimate, Located, Severity
 
 
 def finite(x: float | None) -> float | None:
@@ -72,5 +74,12 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
     return {"t_s": finite(est.t_s), "ess": finite(est.ess), "updated": bool(est.updated),
             "provisional": bool(est.provisional), "v_sy_mps": finite(est.v_sy_mps),
             "v_say_mps": finite(est.v_say_mps),
-            "params": params_json(est)}
+            "params": params_json(est),
+            "located": None if est.located is None else located_json(est.located)}
+
+
+def located_json(loc: Located) -> dict[str, Any]:
+    """The JSON form of a fault-bank change (values relative to nominal)."""
+    return {"t_s": finite(loc.t_s), "parameter": loc.parameter, "rel": finite(loc.rel),
+            "rel_lo": finite(loc.rel_lo), "rel_hi": finite(loc.rel_hi)}
 

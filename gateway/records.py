@@ -38,6 +38,22 @@ class Sample:
 
 
 @dataclass(frozen=True)
+class Located:
+    """A change the estimator's fault bank decided (:mod:`gateway.estimator.faultbank`)
+    at data time ``t_s``: ``parameter`` (a :data:`PARAM_NAMES` name), its located value
+    ``rel`` and the range ``rel_lo``..``rel_hi`` the particles were redrawn over, all
+    relative to nominal. The bank's CUSUM crossed its threshold and the location beat
+    the old value by half that, so the alert policy may act on it at once
+    (docs/alerts.md, "Located changes")."""
+
+    t_s: float
+    parameter: str
+    rel: float
+    rel_lo: float
+    rel_hi: float
+
+
+@dataclass(frozen=True)
 class Estimate:
     """Posterior summary at data time ``t_s``.
 
@@ -47,7 +63,9 @@ class Estimate:
     operating velocities from the state estimates (paper Figs. 9-10). ``provisional``:
     the estimator is still testing its model against the data (the first 2-5 s of the
     sensor-noise test, :mod:`gateway.estimator.noisestart`); the alert policy does not
-    judge it, and the estimate frame says Converging at best.
+    judge it, and the estimate frame says Converging at best. ``located``: the fault
+    bank's latest change while it is recent (up to 2 s of data after its decision;
+    the same record on each of those estimates), or None.
     """
 
     t_s: float
@@ -59,6 +77,7 @@ class Estimate:
     updated: bool = True
     names: tuple[str, ...] = field(default=PARAM_NAMES)
     provisional: bool = False
+    located: Located | None = None
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         """``{name: {"mean": m, "std": s}}`` for each parameter."""

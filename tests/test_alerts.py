@@ -19,7 +19,7 @@ from gateway.alerts.policy import (
 )
 from gateway.errors import ConfigError, InputError, StateError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
-from gateway.records import AlertState, Estimate, Severity
+from gateway.records import AlertState, Estimate, Located, Severity
 
 NOM = THETA_NOMINAL.as_array()
 FS_HZ = 10.0
@@ -331,3 +331,50 @@ def test_a_sure_run_broken_by_one_unsure_estimate_starts_again() -> None:
     ev = run(p, 0, 0.3, csy=0.2) + run(p, 0.3, 0.4, csy=0.3) + run(p, 0.4, 1.0, csy=0.2)
     assert brief(ev) == [(0.5, "csy_ns_per_m", "WARNING", "RAISED"),
                          (0.9, "csy_ns_per_m", "ALARM", "RAISED")]
+
+
+def located(t_s: float, parameter: str, rel: float, rel_lo: float, rel_hi: float,
+            **kw: float) -> Estimate:
+    """An estimate (wide: 25 % of nominal, never sure) that reports a fault-bank change."""
+    return dataclasses.replace(est(t_s, std_rel=0.25, **kw),
+                               located=Located(t_s, parameter, rel, rel_lo, rel_hi))
+
+
+def test_a_located_change_past_a_threshold_raises_with_its_estimate() -> None:
+    """The bank located Csy at 0.49 of nominal, redrawn over 0.32-0.74: the whole range is
+    below the ADVISORY threshold (0.75), not the WARNING one (0.55), so an ADVISORY at
+    once, though the estimate's own std (25 %) would never be sure; the next estimates
+    carry the same change and raise nothing more. Judged on the estimates alone, it
+    waits."""
+    for act, want in ((True, [(10.0, "csy_ns_per_m", "ADVISORY", "RAISED")]), (False, [])):
+        p = AlertPolicy(PolicyConfig(act_on_located=act))
+        assert run(p, 0, 10) == []
+        ev = p.step(located(10.0, "csy_ns_per_m", 0.49, 0.32, 0.74, csy=0.49))
+        for k in range(1, 10):                      # the next estimates carry it too
+            ev += p.step(dataclasses.replace(
+                located(10.0, "csy_ns_per_m", 0.49, 0.32, 0.74, csy=0.49), t_s=10 + k / 10))
+        assert brief(ev) == want
+        if act:
+            assert "located by the fault bank" in ev[0].message
+            assert ev[0].value_rel == pytest.approx(0.49)
+
+
+@pytest.mark.parametrize("parameter, lo, hi, want", [
+    ("csy_ns_per_m", 0.16, 0.37, "WARNING"),        # below 0.55, not all below 0.35
+    ("csy_ns_per_m", 0.10, 0.30, "ALARM"),
+    ("csay_ns_per_m", 0.50, 0.80, None),            # straddles 0.75: the estimate decides
+    ("conicity", 1.65, 3.1, "ADVISORY"),            # a rise: the lower end past 1.6
+    ("conicity", 1.0, 1.9, None),                   # the healthy-data detection of 2026-11-25
+])
+def test_a_located_change_raises_the_level_its_whole_range_is_past(
+        parameter: str, lo: float, hi: float, want: str | None) -> None:
+    p = AlertPolicy()
+    ev = p.step(located(5.0, parameter, (lo * hi) ** 0.5, lo, hi))
+    assert [a.severity.name for a in ev] == ([want] if want else [])
+    assert all(a.parameter == parameter for a in ev)
+
+
+def test_a_located_change_on_another_parameter_raises_nothing_here() -> None:
+    p = AlertPolicy()
+    ev = p.step(located(5.0, "csay_ns_per_m", 0.2, 0.13, 0.30))
+    assert [(a.parameter, a.severity.name) for a in ev] == [("csay_ns_per_m", "ALARM")]

@@ -105,7 +105,7 @@ def test_checkpoint_while_locating_restores_bit_exact() -> None:
     ea = a.run(smp[k:], output_every=50)
     eb = b.run(smp[k:], output_every=50)
     assert a.n_fault_detections == b.n_fault_detections >= 1
-    assert [(e.mean, e.std) for e in ea] == [(e.mean, e.std) for e in eb]
+    assert [(e.mean, e.std, e.located) for e in ea] == [(e.mean, e.std, e.located) for e in eb]
 
 
 @pytest.mark.slow
@@ -115,10 +115,21 @@ def test_block_path_equals_per_sample_path_through_a_detection() -> None:
     a, b = RBPF(cfg), RBPF(cfg)
     smp = _samples(Y)
     ea = a.run(smp, output_every=100)
-    eb = [b.step(s) for s in smp][99::100]
+    eb_all = [b.step(s) for s in smp]
+    eb = eb_all[99::100]
     assert a.n_fault_detections == b.n_fault_detections >= 1
     assert a.last_fault() == b.last_fault()
     assert [e.mean for e in ea] == [e.mean for e in eb]
+    # every estimate within 2 s of data after a detection carries it, whichever path
+    la = [e.located for e in ea if e.located is not None]
+    lb = [e.located for e in eb if e.located is not None]
+    assert la == lb and len({loc.t_s for loc in la}) == a.n_fault_detections
+    near = [e for e in eb_all if e.located is not None and e.located == la[-1]]
+    assert 0.0 <= near[0].t_s - la[-1].t_s <= 1.5e-3        # from the next sample on
+    assert near[-1].t_s - la[-1].t_s == pytest.approx(2.0, abs=1.5e-3)
+    last = la[-1]
+    assert last.parameter == "csay_ns_per_m" and last.rel_lo < last.rel < last.rel_hi
+    assert last.rel / last.rel_lo == pytest.approx(last.rel_hi / last.rel)
 
 
 def _peak_after_refresh(bank: FaultBank, seg: np.ndarray, t0_s: float, null_units: float) -> float:
@@ -167,3 +178,58 @@ def test_a_moved_reference_does_not_turn_the_static_yaw_into_a_cusum_rise(sensor
     carried = _peak_after_refresh(bank, seg, smp[k].t_s, 8.0)
     assert clean < bank.config.h_nats / 2, clean
     assert abs(carried - clean) < 0.5, (carried, clean)
+
+
+def _first_decisive_row(g_sum: np.ndarray, left: int, total: int, min_n: int,
+                        half: float) -> int | None:
+    """The location phase's end, sample by sample (what ``_located_row`` vectorises)."""
+    for r in range(min(left, len(g_sum))):
+        row = g_sum[r]
+        best = int(np.argmax(row))
+        far = [row[i] for i in range(len(row)) if abs(i - best) >= 3]
+        if total - left + r + 1 >= min_n and row[best] > half \
+                and row[best] - max(far) >= half:
+            return r
+    return left - 1 if left <= len(g_sum) else None
+
+
+@pytest.mark.parametrize("left, min_s", [(1000, 0.1), (700, 0.1), (1000, 0.5),
+                                         (950, 0.1), (300, 1.0), (1000, 2.0)])
+def test_location_ends_at_the_first_decisive_sample(left: int, min_s: float) -> None:
+    """The location sums stop at the first sample, after ``locate_min_s``, where the best
+    grid value beats the reference by h/2 and every value three or more grid steps away
+    by h/2 (else after ``locate_s``); a block that starts inside the phase counts the
+    samples already summed."""
+    bank = FaultBank(FaultBankConfig(locate_min_s=min_s), n_params=3, fs_hz=FS_HZ,
+                     ar_paper=1.0)
+    rng = np.random.default_rng(3)
+    k, J = 400, bank.n_hyp
+    slope = np.abs(7 - np.arange(J)) * -0.02 + 0.04          # nats per sample, peak at 7
+    g_sum = np.cumsum(slope[None] + rng.normal(0.0, 0.05, (k, J)), axis=0)
+    total = round(FaultBankConfig().locate_s * FS_HZ)
+    want = _first_decisive_row(g_sum, left, total, round(min_s * FS_HZ), 12.5)
+    assert bank._located_row(g_sum, left) == want
+    if left == 1000 and min_s == 0.1:
+        assert want is not None and 100 <= want < 399      # decisive inside the block
+    if min_s >= 1.0:
+        assert want == (left - 1 if left <= k else None)    # always the full phase
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("parameter, factor, sensors", [(0, 0.25, 5), (0, 0.5, 3)])
+def test_early_location_keeps_the_truth_in_the_redraw_range(parameter: int, factor: float,
+                                                            sensors: int) -> None:
+    """A damper step at 8 s, fresh seed 41, the service's filter with the early stop
+    (an option, off by default) and with the full 1 s location phase: the early one
+    decides sooner, on the same parameter, and the new value lies inside its redraw
+    range (three grid steps, a factor 1.52 either side of the located value); the
+    estimate is within 15 % by +5 s."""
+    rows = [fault_row(parameter, factor, sensors, 41, seconds=14.0, fault_at_s=8.0,
+                      particles=1000, mode="fast", locate_min_s=m) for m in (0.1, None)]
+    early, full = rows
+    assert early["locate_min_s"] < early["locate_s"] <= full["locate_min_s"]
+    for row in rows:
+        assert row["detect_s"] is not None and row["wrong"] == 0 and row["before"] == 0, row
+    assert early["detect_s"] - early["confirmed_s"] < full["detect_s"] - full["confirmed_s"]
+    assert 1 / 1.52 <= early["located_rel"] <= 1.52, early
+    assert early["track_s"] is not None and early["track_s"] <= 5.0, early

@@ -24,7 +24,7 @@ from gateway.errors import StateError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
 from gateway.offline.replay import alert_json as replay_alert
 from gateway.offline.replay import estimate_json as replay_estimate
-from gateway.records import Alert, AlertState, Estimate, Severity
+from gateway.records import Alert, AlertState, Estimate, Located, Severity
 from gateway.sinks.store import codec
 from gateway.sinks.store.store import StateStore
 
@@ -102,7 +102,12 @@ def test_estimate_form_is_strict_json():
                     "v_say_mps": None, "params": {
                         "csy_ns_per_m": {"mean": 40e3, "std": 1e3},
                         "csay_ns_per_m": {"mean": None, "std": 1e5},
-                        "conicity": {"mean": 0.15, "std": None}}}
+                        "conicity": {"mean": 0.15, "std": None}},
+                    "located": None}
+    loc = Located(1.4, "csy_ns_per_m", 0.5, 0.33, math.nan)
+    form = strict(jsonform.estimate_json(dataclasses.replace(NAN_EST, located=loc)))
+    assert form["located"] == {"t_s": 1.4, "parameter": "csy_ns_per_m", "rel": 0.5,
+                               "rel_lo": 0.33, "rel_hi": None}
 
 
 def test_every_alert_writer_uses_the_one_form():

@@ -9,7 +9,10 @@ nominal, Sec. 4.2 speed) with 3 and 5 sensors and prints one JSON line per run:
 - ``track_s``: fault to the first estimate from which the parameter stays within 15 % of
   its new value to the end;
 - ``alert_s`` / ``alarm_s``: fault to the first alert / ALARM on the parameter from the
-  default alert policy fed the 10 Hz estimates (:class:`gateway.alerts.policy.AlertPolicy`);
+  default alert policy fed the 10 Hz estimates (:class:`gateway.alerts.policy.AlertPolicy`,
+  which acts on the bank's located changes); ``alert_estimates_only_s``: the same policy
+  judging the estimates alone (``act_on_located=False``), on the same run;
+  ``alert_severity``: the first alert's level;
 - ``wrong``: detections on a healthy parameter; ``before``: detections before the fault;
   ``alerts_healthy`` / ``alerts_before`` the same for alerts.
 
@@ -34,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
-from gateway.alerts.policy import AlertPolicy
+from gateway.alerts.policy import AlertPolicy, PolicyConfig
 from gateway.config import EstimatorConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
@@ -70,11 +73,14 @@ Filter = RBPF | NoiseCheckedStart
 
 def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    sensor_noise: str = "measured", moves_drop_null: bool | None = None,
-                   start_ramp_s: float | None = None) -> Filter:
+                   start_ramp_s: float | None = None, locate_min_s: float | None = None
+                   ) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
     sensor-noise test, the start's likelihood ramp); ``moves_drop_null`` and
-    ``start_ramp_s`` override those options of the filter
-    (:class:`gateway.estimator.rbpf_config.RBPFConfig`; None: the service's)."""
+    ``start_ramp_s`` override those options of the filter, ``locate_min_s`` that of its
+    fault bank
+    (:class:`gateway.estimator.rbpf_config.RBPFConfig`,
+    :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
                   mode=mode, sensor_noise=sensor_noise)
     filt = build_estimator(cfg, FS_HZ)
@@ -84,6 +90,8 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
                                     else moves_drop_null),
                    start_ramp_s=(filt.config.start_ramp_s if start_ramp_s is None
                                  else start_ramp_s))
+    if locate_min_s is not None and rbpf.faults is not None:
+        rbpf = replace(rbpf, faults=replace(rbpf.faults, locate_min_s=locate_min_s))
     if rbpf == filt.config:
         return filt
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
@@ -117,27 +125,35 @@ def _noise_columns(filt: Filter) -> dict[str, Any]:
                 round(u / m, 3) for u, m in zip(res.used_var, res.model_var, strict=True)]}
 
 
+def _bank_columns(filt: Filter) -> dict[str, Any]:
+    """The fault bank's location settings (None: no bank)."""
+    bank = filt.config.faults
+    return {"locate_min_s": None if bank is None else bank.locate_min_s,
+            "locate_s": None if bank is None else bank.locate_s}
+
+
 def _last(filt: Filter) -> tuple[float, str, float, float]:
     last = filt.last_fault()
     assert last is not None
     return last
 
 
-def alerts(est: Sequence[Any]) -> list[tuple[float, str, str]]:
-    """Raised alerts (data time, parameter, severity) of the default policy over ``est``."""
-    policy = AlertPolicy()
+def alerts(est: Sequence[Any], act_on_located: bool = True) -> list[tuple[float, str, str]]:
+    """Raised alerts (data time, parameter, severity) of the default policy over ``est``
+    (``act_on_located`` False: judging the estimates alone, as before 2026-11-26)."""
+    policy = AlertPolicy(PolicyConfig(act_on_located=act_on_located))
     return [(a.t_s, a.parameter, a.severity.name) for e in est for a in policy.step(e)
             if a.state.name == "RAISED"]
 
 
 def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
-              sensor_noise: str = "measured", moves_drop_null: bool | None = None
-              ) -> dict[str, Any]:
+              sensor_noise: str = "measured", moves_drop_null: bool | None = None,
+              locate_min_s: float | None = None) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
-                                    moves_drop_null))
+                                             moves_drop_null, locate_min_s=locate_min_s))
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -149,9 +165,11 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     raised = alerts(est)
     on_it = [t - fault_at_s for t, n, _ in raised if n == name and t > fault_at_s]
     alarm = [t - fault_at_s for t, n, sev in raised if n == name and sev == "ALARM"]
+    judged = alerts(est, act_on_located=False)
+    on_it_judged = [t - fault_at_s for t, n, _ in judged if n == name and t > fault_at_s]
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
             "noise_scale": noise_scale, **_noise_columns(filt),
-            "moves_drop_null": filt.config.moves_drop_null,
+            "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
             "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
             "confirmed_s": round(right[0][3] - fault_at_s, 3) if right else None,
             "detect_s": round(right[0][0] - fault_at_s, 3) if right else None,
@@ -159,6 +177,9 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
             "track_s": None if track is None else round(track, 2),
             "alert_s": round(on_it[0], 2) if on_it else None,
             "alarm_s": round(alarm[0], 2) if alarm else None,
+            "alert_estimates_only_s": round(on_it_judged[0], 2) if on_it_judged else None,
+            "alert_severity": next((sev for t, n, sev in raised
+                                    if n == name and t > fault_at_s), None),
             "alerts_healthy": sum(n != name for _, n, _ in raised),
             "alerts_before": sum(t <= fault_at_s for t, _, _ in raised),
             "wrong": sum(f[1] != name for f in found if f[0] > fault_at_s),
@@ -174,15 +195,16 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
 
 def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode: str,
                 noise_scale: float = 1.0, sensor_noise: str = "measured",
-                moves_drop_null: bool | None = None) -> dict[str, Any]:
+                moves_drop_null: bool | None = None, locate_min_s: float | None = None
+                ) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
-                                    moves_drop_null))
+                                             moves_drop_null, locate_min_s=locate_min_s))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
             "noise_scale": noise_scale, **_noise_columns(filt),
-            "moves_drop_null": filt.config.moves_drop_null,
+            "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
             "particles": particles, "seconds": seconds, "detections": len(found),
             "alerts": len(alerts(est)),
             "detail": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
@@ -196,8 +218,10 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per fault case (parameter, factor, sensors): runs, median and worst detection and
-    tracking delays (s), runs detected on the right parameter, wrong and early
-    detections. A case's worst is None when some run never detected or tracked."""
+    tracking delays (s), first alert and ALARM (and the first alert of the policy that
+    judges the estimates alone, rows since 2026-11-26), runs detected on the right
+    parameter, wrong and early detections. A case's worst is None when some run never
+    detected, tracked or alerted."""
     out = []
     keys = sorted({(r["parameter"], r["factor"], r["sensors"]) for r in rows
                    if r["what"] == "fault"})
@@ -206,7 +230,7 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 and (r["parameter"], r["factor"], r["sensors"]) == key]
         row: dict[str, Any] = {"parameter": key[0], "factor": key[1], "sensors": key[2],
                                "runs": len(case)}
-        for name in ("detect_s", "track_s", "alert_s", "alarm_s"):
+        for name in ("detect_s", "track_s", "alert_s", "alarm_s", "alert_estimates_only_s"):
             vals = [r.get(name) for r in case]
             got = [v for v in vals if v is not None]
             row[f"{name}_median"] = float(np.median(got)) if got else None
@@ -306,7 +330,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
                     default=None, help="the filter's moves_drop_null option (default: the "
                     "filter's own)")
+    ap.add_argument("--locate-min-s", type=float, default=None,
+                    help="the fault bank's shortest location phase, s (default: the bank's "
+                         "own, its full location phase; below it: the early stop)")
     args = ap.parse_args(argv)
+    if args.locate_min_s is not None and not args.locate_min_s >= 0:
+        ap.error(f"expected --locate-min-s >= 0 s, got {args.locate_min_s}")
     if args.what in ("summary", "plot"):
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
         if args.what == "plot":
@@ -321,13 +350,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     particles=args.particles, mode=args.mode,
                                     noise_scale=args.noise_scale,
                                     sensor_noise=args.sensor_noise,
-                                    moves_drop_null=args.moves_drop_null)]
+                                    moves_drop_null=args.moves_drop_null,
+                                    locate_min_s=args.locate_min_s)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
                                   mode=args.mode, noise_scale=args.noise_scale,
                                   sensor_noise=args.sensor_noise,
-                                  moves_drop_null=args.moves_drop_null)
+                                  moves_drop_null=args.moves_drop_null,
+                                  locate_min_s=args.locate_min_s)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

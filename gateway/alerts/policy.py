@@ -12,6 +12,9 @@ Per parameter, ``rel = mean / nominal`` is judged against thresholds on a low si
 (``rel <= threshold``, a weak damper) and/or a high side (``rel >= threshold``, worn
 wheels), one per severity. A confidence gate (``std / max(|mean|, nominal)``), hold
 times in data time and hysteresis keep estimator noise from raising or flapping alerts.
+A change the estimator's fault bank located (:class:`gateway.records.Located`) whose
+whole redraw range lies past a threshold raises at once: the bank has already made the
+statistical decision the hold times stand in for.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from gateway import jsonform
 from gateway.alerts import judge
 from gateway.errors import ConfigError, InputError, StateError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
-from gateway.records import Alert, AlertState, Estimate, Severity
+from gateway.records import Alert, AlertState, Estimate, Located, Severity
 
 SIDES: tuple[str, str] = ("low", "high")
 CODE_BASE: dict[str, int] = {"low": 0x10, "high": 0x20}
@@ -142,7 +145,9 @@ class PolicyConfig:
     apart (or going back in time) break the continuity. A condition that is *sure*, the
     value past its threshold by at least ``sure_sigmas`` times the estimate's std (both
     relative to nominal) on every estimate, raises after ``sure_hold_s`` instead: a
-    damper the estimator has found failed need not wait the noise hold.
+    damper the estimator has found failed need not wait the noise hold. With
+    ``act_on_located`` a change the fault bank located, its whole range past a threshold,
+    raises with the estimate that reports it (docs/alerts.md, "Located changes").
     """
 
     params: Mapping[str, ParamPolicy] = field(default_factory=default_params)
@@ -151,6 +156,7 @@ class PolicyConfig:
     max_gap_s: float = 2.0
     sure_hold_s: float = 0.5
     sure_sigmas: float = 4.0
+    act_on_located: bool = True
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.params) - set(PARAM_NAMES))
@@ -176,6 +182,7 @@ class _Track:
     last_t_s: float | None = None
     release_since: float | None = None
     baseline_t_s: float | None = None
+    located_t_s: float | None = None        # the fault-bank change last acted on
     since: dict[str, list[float | None]] = field(
         default_factory=lambda: {s: [None, None, None] for s in SIDES})
     sure_since: dict[str, list[float | None]] = field(
@@ -291,9 +298,38 @@ class AlertPolicy:
             except ValueError as err:
                 raise InputError(f"expected estimate names to include {name!r}, "
                                  f"got {estimate.names}") from err
+            loc = estimate.located
+            if loc is not None and loc.parameter == name and self._config.act_on_located:
+                events += self._located(name, pp, self._tracks[name], estimate.t_s, loc)
             events += self._judge(name, pp, self._tracks[name], estimate.t_s,
                                   float(estimate.mean[i]), float(estimate.std[i]))
         return events
+
+    def _located(self, name: str, pp: ParamPolicy, tr: _Track, t_s: float, loc: Located
+                 ) -> list[Alert]:
+        """Raise (or escalate) at once to the highest level whose threshold the whole
+        located range ``rel_lo``..``rel_hi`` is past; nothing if no level is. Each change
+        is acted on once (estimates carry it for 2 s; after a restart, acting again raises
+        nothing that is already raised)."""
+        if loc.t_s == tr.located_t_s:
+            return []
+        tr.located_t_s = loc.t_s
+        sev, side = 0, ""
+        for s in SIDES:
+            edge = loc.rel_hi if s == "low" else loc.rel_lo
+            for k, threshold in enumerate(pp.levels(s)):
+                if threshold is not None and judge.beyond(s, edge, threshold) and k + 1 > sev:
+                    sev, side = k + 1, s
+        if not sev or (tr.severity and side == tr.side and sev <= tr.severity):
+            return []
+        events = [self._clear(name, tr, t_s, f"superseded on the {side} side")
+                  ] if tr.severity and side != tr.side else []
+        tr.value_rel = loc.rel
+        return events + [self._raise(name, tr, sev, side, t_s,
+                                     f"{name} located by the fault bank at {loc.rel:.3f} of "
+                                     f"nominal ({loc.rel_lo:.3f}-{loc.rel_hi:.3f}), {side}-side "
+                                     f"{Severity(sev).name} threshold "
+                                     f"{pp.levels(side)[sev - 1]:g}")]
 
     def _judge(self, name: str, pp: ParamPolicy, tr: _Track, t_s: float, mean: float,
                std: float) -> list[Alert]:

@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (454): the watch, confirm and locate phases share one state vector and
+Over 400 lines (503): the watch, confirm and locate phases share one state vector and
 one set of filters; splitting them would pass that state around.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
@@ -24,9 +24,14 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   hypothesis's state less its unobservable static-yaw component (a conicity change
   would otherwise turn that arbitrary component into a transient the data never had,
   and the grid read it as a larger rise); their log-likelihood ratios to the reference
-  are summed over
-  ``locate_s``, and the best grid value, if it beats the reference by ``h / 2``, is the
-  :class:`Detection`. The estimator then redraws that parameter of every particle over
+  are summed, and the best grid value, if it beats the reference by ``h / 2``, is the
+  :class:`Detection`. Optionally (``locate_min_s`` below ``locate_s``; off by default)
+  the sum stops early, after at least ``locate_min_s``, at the first
+  sample where the best value also leads every grid value outside its redraw range
+  (three grid steps or more away) by ``h / 2``: for a correct model ``exp(-h / 2)``
+  bounds the chance that a value that far from the truth ever leads it by that much
+  (Wald), so the redraw range then holds the truth. Otherwise the sum runs its full
+  ``locate_s``. The estimator then redraws that parameter of every particle over
   :meth:`FaultBank.redraw_range` and gives every particle the best filter's state.
 
 Life cycle: the bank is idle until the cloud has ``start_after_s`` of updated data
@@ -64,6 +69,9 @@ from gateway.model.coordinates import NZ
 
 N_THETA = 3
 """Parameters the bank tests (Csy, Csay, lambda); Ar, when estimated, is not."""
+REDRAW_STEPS = 3
+"""Location grid steps either side of the located value over which the detected
+parameter is redrawn (:meth:`FaultBank.redraw_range`)."""
 
 
 @dataclass(frozen=True)
@@ -76,7 +84,9 @@ class FaultBankConfig:
     parameter at which it starts; ``hold_s``: data time (s) its CUSUMs stay at 0 after a
     start or a detection; ``confirm_s``: data time (s) from a crossing to the decision,
     which takes the largest CUSUM then (parameter and side); ``locate_s``: data time (s)
-    over which the location grid's log-likelihoods are summed.
+    over which the location grid's log-likelihoods are summed at most; ``locate_min_s``:
+    at least (the early stop, module docstring; ``locate_min_s >= locate_s``: always
+    ``locate_s``, the default: the early stop's locations were biased, docs/estimator.md).
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -86,6 +96,7 @@ class FaultBankConfig:
     hold_s: float = 1.0
     confirm_s: float = 0.25
     locate_s: float = 1.0
+    locate_min_s: float = 1.0
 
     def __post_init__(self) -> None:
         f = np.asarray(self.factors, dtype=float)
@@ -96,7 +107,8 @@ class FaultBankConfig:
         if not self.h_nats > 0:
             raise EstimatorError(f"expected a positive CUSUM threshold in nats, "
                                  f"got {self.h_nats}")
-        for name in ("start_after_s", "max_rel_std", "hold_s", "confirm_s", "locate_s"):
+        for name in ("start_after_s", "max_rel_std", "hold_s", "confirm_s", "locate_s",
+                     "locate_min_s"):
             if not getattr(self, name) >= 0:
                 raise EstimatorError(f"expected {name} >= 0, got {getattr(self, name)}")
 
@@ -310,13 +322,14 @@ class FaultBank:
         self._part = k
         if self.vec[_MODE] == _LOCATE:
             left = int(self.vec[_LEFT])
-            if left > k:
-                self.g += d.sum(axis=0)
+            g_sum = self.g[None] + np.cumsum(d[:left], axis=0)             # (<=k, J)
+            j = self._located_row(g_sum, left)
+            if j is None:
+                self.g = g_sum[-1].copy()
                 self.vec[_LEFT] = left - k
                 return None
-            j = left - 1
             self._rerun(x0, Y, full, j)
-            self.g += d[:j + 1].sum(axis=0)
+            self.g = g_sum[j].copy()
             return self._located(t0_s + j * dt_s)
         hold = int(self.vec[_HOLD])
         held = min(hold, k)
@@ -351,25 +364,52 @@ class FaultBank:
         """A confirmed crossing by hypothesis ``best``: every filter restarts from its
         state, the hypotheses become a grid over the changed parameter on the crossing's
         side of the reference (:meth:`locate_grid`), and their log-likelihood ratios
-        are summed over ``locate_s``."""
+        are summed for up to ``locate_s`` (:meth:`_located_row`)."""
         p, fi = divmod(best, len(self.factors))
         state = self._state_of(1 + best)
         self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
         self.vec[_LOC_SIDE] = -1.0 if self.factors[fi] < 1.0 else 1.0
-        self.vec[_LEFT] = max(1, round(self.config.locate_s * self.fs_hz))
+        self.vec[_LEFT] = self._locate_samples()
         self.vec[_CONF_T] = t_s
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
         self._solve()
 
-    def locate_grid(self) -> np.ndarray:
+    def locate_grid(self, side: float | None = None) -> np.ndarray:
         """The location phase's factors (J,): log-spaced from half the smallest factor
-        to 0.9 (a drop), or from 1/0.9 to twice the largest (a rise)."""
-        if self.vec[_LOC_SIDE] < 0:
+        to 0.9 (a drop, ``side`` < 0), or from 1/0.9 to twice the largest (a rise);
+        ``side`` defaults to that of the current location phase."""
+        if (self.vec[_LOC_SIDE] if side is None else side) < 0:
             lo, hi = float(self.factors.min()) / 2.0, 0.9
         else:
             lo, hi = 1.0 / 0.9, 2.0 * float(self.factors.max())
         return np.geomspace(lo, hi, self.n_hyp)
+
+    def _located_row(self, g_sum: np.ndarray, left: int) -> int | None:
+        """The row of ``g_sum`` (k, J), the location sums after each sample, that ends
+        the location phase, or None (``left`` samples were left before this block): the
+        first row, after ``locate_min_s``, where the best value beats the reference by
+        ``h / 2`` and leads every grid value three or more steps away by ``h / 2``;
+        else the last of the ``locate_s`` samples, if in this block."""
+        g_sum = g_sum[:left]
+        k, half = len(g_sum), self.config.h_nats / 2.0
+        total = self._locate_samples()
+        first = max(0, round(self.config.locate_min_s * self.fs_hz) - (total - left) - 1)
+        if first < k:
+            rows = g_sum[first:]
+            best = np.argmax(rows, axis=1)
+            lead = rows[np.arange(len(rows)), best]
+            idx = np.arange(rows.shape[1])
+            far = np.abs(idx[None] - best[:, None]) >= REDRAW_STEPS
+            runner = np.where(far, rows, -np.inf).max(axis=1)
+            stop = np.nonzero((lead > half) & (lead - runner >= half))[0]
+            if len(stop):
+                return first + int(stop[0])
+        return left - 1 if left <= k else None
+
+    def _locate_samples(self) -> int:
+        """Samples in a full location phase (``locate_s``)."""
+        return max(1, round(self.config.locate_s * self.fs_hz))
 
     def _located(self, t_s: float) -> Detection | None:
         """The location phase's answer: the best grid value, if it beats the reference
@@ -435,7 +475,16 @@ class FaultBank:
         """The values (lo, hi) over which the detected parameter is redrawn: three grid
         steps either side of the located value."""
         value = det.factor * det.reference
-        return value / det.step**3, value * det.step**3
+        return value / det.step**REDRAW_STEPS, value * det.step**REDRAW_STEPS
+
+    def last_range(self) -> tuple[float, float] | None:
+        """The range (lo, hi) the latest detection redrew its parameter over
+        (:meth:`redraw_range`), in the parameter's unit, or None."""
+        if self.count == 0:
+            return None
+        grid = self.locate_grid(side=-1.0 if self.vec[_LAST_F] < 1.0 else 1.0)
+        step, value = float(grid[1] / grid[0]), float(self.vec[_LAST_V])
+        return value / step**REDRAW_STEPS, value * step**REDRAW_STEPS
 
     def last(self) -> tuple[float, int, float, float] | None:
         """(data time, parameter index, located value, time the crossing was confirmed)

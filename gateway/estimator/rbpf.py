@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (770): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines (826): the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor and fault bank
 are already separate modules.
 
@@ -68,7 +68,7 @@ from gateway.model.vehicle import (
     sensor_set,
     track_intensity,
 )
-from gateway.records import Estimate, NoiseCheck, Sample
+from gateway.records import Estimate, Located, NoiseCheck, Sample
 
 __all__ = ["RBPF", "RBPFConfig", "AR_NAME", "PRIOR_SAMPLES"]
 
@@ -89,6 +89,9 @@ stepped a whole 4096-sample window to keep 30 of them (10 ms per sample instead 
 PRIOR_SAMPLES = 2**13
 """The state prior is the covariance this many samples after a start from rest."""
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
+LOCATED_FOR_S = 2.0
+"""Data time (s) over which estimates carry the fault bank's latest detection
+(:class:`gateway.records.Located`); the alert policy acts on each one once."""
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
             "_subset_run", "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
@@ -753,7 +756,22 @@ class RBPF:
         return Estimate(t_s=float(t_s), mean=tuple(float(v) for v in mean),
                         std=tuple(float(v) for v in std),
                         ess=ess, v_sy_mps=v_sy, v_say_mps=v_say,
-                        updated=updated, names=self.config.names)
+                        updated=updated, names=self.config.names, located=self._located(t_s))
+
+    def _located(self, t_s: float) -> Located | None:
+        """The bank's latest detection, on every estimate up to :data:`LOCATED_FOR_S`
+        of data after it (a function of the state: the worker may drop estimates between
+        outputs, and a restart repeats none); None otherwise."""
+        last = None if self._bank is None else self._bank.last()
+        if last is None or not 0.0 <= t_s - last[0] <= LOCATED_FOR_S:
+            return None
+        assert self._bank is not None
+        rng = self._bank.last_range()
+        assert rng is not None
+        t_det_s, p, value, _ = last
+        nominal = float(self.config.nominal_array[p])
+        return Located(t_s=t_det_s, parameter=self.config.names[p], rel=value / nominal,
+                       rel_lo=rng[0] / nominal, rel_hi=rng[1] / nominal)
 
 
 @numba.njit(cache=True)
@@ -799,6 +817,8 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
     if d.get("faults") is not None:
         bank: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
                                 for k, v in d["faults"].items()}
+        # a checkpoint from before the early stop summed the full location phase
+        bank.setdefault("locate_min_s", bank.get("locate_s", FaultBankConfig.locate_s))
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
