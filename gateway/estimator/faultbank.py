@@ -322,14 +322,13 @@ class FaultBank:
         self._part = k
         if self.vec[_MODE] == _LOCATE:
             left = int(self.vec[_LEFT])
-            g_sum = self.g[None] + np.cumsum(d[:left], axis=0)             # (<=k, J)
-            j = self._located_row(g_sum, left)
+            j = self._located_row(self.g[None] + np.cumsum(d[:left], axis=0), left)
             if j is None:
-                self.g = g_sum[-1].copy()
+                self.g += d.sum(axis=0)
                 self.vec[_LEFT] = left - k
                 return None
             self._rerun(x0, Y, full, j)
-            self.g = g_sum[j].copy()
+            self.g += d[:j + 1].sum(axis=0)     # the sums as before the early stop, bit for bit
             return self._located(t0_s + j * dt_s)
         hold = int(self.vec[_HOLD])
         held = min(hold, k)
