@@ -205,10 +205,11 @@ def test_location_ends_at_the_first_decisive_sample(left: int, min_s: float) -> 
     rng = np.random.default_rng(3)
     k, J = 400, bank.n_hyp
     slope = np.abs(7 - np.arange(J)) * -0.02 + 0.04          # nats per sample, peak at 7
-    g_sum = np.cumsum(slope[None] + rng.normal(0.0, 0.05, (k, J)), axis=0)
+    d = slope[None] + rng.normal(0.0, 0.05, (k, J))         # per-sample ratios
+    g_sum = np.cumsum(d, axis=0)
     total = round(FaultBankConfig().locate_s * FS_HZ)
     want = _first_decisive_row(g_sum, left, total, round(min_s * FS_HZ), 12.5)
-    assert bank._located_row(g_sum, left) == want
+    assert bank._located_row(d, left) == want
     if left == 1000 and min_s == 0.1:
         assert want is not None and 100 <= want < 399      # decisive inside the block
     if min_s >= 1.0:

@@ -322,14 +322,10 @@ class AlertPolicy:
                     sev, side = k + 1, s
         if not sev or (tr.severity and side == tr.side and sev <= tr.severity):
             return []
-        events = [self._clear(name, tr, t_s, f"superseded on the {side} side")
-                  ] if tr.severity and side != tr.side else []
         tr.value_rel = loc.rel
-        return events + [self._raise(name, tr, sev, side, t_s,
-                                     f"{name} located by the fault bank at {loc.rel:.3f} of "
-                                     f"nominal ({loc.rel_lo:.3f}-{loc.rel_hi:.3f}), {side}-side "
-                                     f"{Severity(sev).name} threshold "
-                                     f"{pp.levels(side)[sev - 1]:g}")]
+        return self._raise_over(name, pp, tr, sev, side, t_s,
+                                f"{name} located by the fault bank at {loc.rel:.3f} of "
+                                f"nominal ({loc.rel_lo:.3f}-{loc.rel_hi:.3f})")
 
     def _judge(self, name: str, pp: ParamPolicy, tr: _Track, t_s: float, mean: float,
                std: float) -> list[Alert]:
@@ -367,13 +363,19 @@ class AlertPolicy:
                 if held and k + 1 > sev:
                     sev, side = k + 1, s
         if sev and (tr.severity == 0 or side != tr.side or sev > tr.severity):
-            events = [self._clear(name, tr, t_s, f"superseded on the {side} side")
-                      ] if tr.severity and side != tr.side else []
-            return events + [self._raise(name, tr, sev, side, t_s,
-                                         f"{name} at {rel:.3f} of nominal, {side}-side "
-                                         f"{Severity(sev).name} threshold "
-                                         f"{pp.levels(side)[sev - 1]:g}")]
+            return self._raise_over(name, pp, tr, sev, side, t_s,
+                                    f"{name} at {rel:.3f} of nominal")
         return self._release(name, pp, tr, t_s, rel) if tr.severity else []
+
+    def _raise_over(self, name: str, pp: ParamPolicy, tr: _Track, sev: int, side: str,
+                    t_s: float, what: str) -> list[Alert]:
+        """Raise ``sev`` on ``side``, clearing first an alert on the other side; the
+        message is ``what`` and the threshold passed."""
+        events = [self._clear(name, tr, t_s, f"superseded on the {side} side")
+                  ] if tr.severity and side != tr.side else []
+        return events + [self._raise(name, tr, sev, side, t_s,
+                                     f"{what}, {side}-side {Severity(sev).name} threshold "
+                                     f"{pp.levels(side)[sev - 1]:g}")]
 
     def _release(self, name: str, pp: ParamPolicy, tr: _Track, t_s: float,
                  rel: float) -> list[Alert]:

@@ -322,7 +322,7 @@ class FaultBank:
         self._part = k
         if self.vec[_MODE] == _LOCATE:
             left = int(self.vec[_LEFT])
-            j = self._located_row(self.g[None] + np.cumsum(d[:left], axis=0), left)
+            j = self._located_row(d, left)
             if j is None:
                 self.g += d.sum(axis=0)
                 self.vec[_LEFT] = left - k
@@ -384,18 +384,17 @@ class FaultBank:
             lo, hi = 1.0 / 0.9, 2.0 * float(self.factors.max())
         return np.geomspace(lo, hi, self.n_hyp)
 
-    def _located_row(self, g_sum: np.ndarray, left: int) -> int | None:
-        """The row of ``g_sum`` (k, J), the location sums after each sample, that ends
+    def _located_row(self, d: np.ndarray, left: int) -> int | None:
+        """The sample of this block, with log-likelihood ratios ``d`` (k, J), that ends
         the location phase, or None (``left`` samples were left before this block): the
-        first row, after ``locate_min_s``, where the best value beats the reference by
-        ``h / 2`` and leads every grid value three or more steps away by ``h / 2``;
-        else the last of the ``locate_s`` samples, if in this block."""
-        g_sum = g_sum[:left]
-        k, half = len(g_sum), self.config.h_nats / 2.0
+        first, after ``locate_min_s``, where the summed best value beats the reference by
+        ``h / 2`` and leads every grid value three or more steps away by ``h / 2``; else
+        the last of the ``locate_s`` samples, if in this block."""
+        k, half = min(left, len(d)), self.config.h_nats / 2.0
         total = self._locate_samples()
         first = max(0, round(self.config.locate_min_s * self.fs_hz) - (total - left) - 1)
-        if first < k:
-            rows = g_sum[first:]
+        if first < k:                         # the early stop can fire in this block
+            rows = (self.g[None] + np.cumsum(d[:k], axis=0))[first:]
             best = np.argmax(rows, axis=1)
             lead = rows[np.arange(len(rows)), best]
             idx = np.arange(rows.shape[1])
@@ -473,8 +472,7 @@ class FaultBank:
     def redraw_range(det: Detection) -> tuple[float, float]:
         """The values (lo, hi) over which the detected parameter is redrawn: three grid
         steps either side of the located value."""
-        value = det.factor * det.reference
-        return value / det.step**REDRAW_STEPS, value * det.step**REDRAW_STEPS
+        return _around(det.factor * det.reference, det.step)
 
     def last_range(self) -> tuple[float, float] | None:
         """The range (lo, hi) the latest detection redrew its parameter over
@@ -482,8 +480,7 @@ class FaultBank:
         if self.count == 0:
             return None
         grid = self.locate_grid(side=-1.0 if self.vec[_LAST_F] < 1.0 else 1.0)
-        step, value = float(grid[1] / grid[0]), float(self.vec[_LAST_V])
-        return value / step**REDRAW_STEPS, value * step**REDRAW_STEPS
+        return _around(float(self.vec[_LAST_V]), float(grid[1] / grid[0]))
 
     def last(self) -> tuple[float, int, float, float] | None:
         """(data time, parameter index, located value, time the crossing was confirmed)
@@ -492,6 +489,11 @@ class FaultBank:
             return None
         return (float(self.vec[_LAST_T]), int(self.vec[_LAST_P]), float(self.vec[_LAST_V]),
                 float(self.vec[_CONF_T]))
+
+
+def _around(value: float, step: float) -> tuple[float, float]:
+    """(lo, hi): :data:`REDRAW_STEPS` grid steps of ratio ``step`` either side of ``value``."""
+    return value / step**REDRAW_STEPS, value * step**REDRAW_STEPS
 
 
 def _cusum_path(g0: np.ndarray, d: np.ndarray) -> np.ndarray:

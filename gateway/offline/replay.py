@@ -55,7 +55,7 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
     out["provisional"] = j["provisional"]
     for key in ("v_sy_mps", "v_say_mps"):
         out[key] = _sig(j[key], 6)
-    if j["located"] is not None:            # only on the estimate after a bank detection
+    if j["located"] is not None:            # only within 2 s after a bank detection
         out["located"] = j["located"]
     return out
 
