@@ -33,7 +33,8 @@ def test_vectorised_cusum_is_pages_recursion() -> None:
 
 @pytest.mark.parametrize("bad", [dict(factors=(0.5, 1.0)), dict(factors=()),
                                  dict(factors=(0.5, 0.5)), dict(factors=(-0.5,)),
-                                 dict(h_nats=0.0), dict(locate_s=-1.0)])
+                                 dict(h_nats=0.0), dict(locate_s=-1.0),
+                                 dict(locate_cov_scale=0.5), dict(locate_max_s=0.5)])
 def test_bad_bank_settings_are_refused(bad: dict) -> None:
     with pytest.raises(EstimatorError, match="expected"):
         FaultBankConfig(**bad)
@@ -75,6 +76,83 @@ def test_conicity_rise_is_located_at_its_value(sensors: int, seed: int) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("factor", [0.25, 0.5])
+def test_the_location_is_fair_to_the_new_value(factor: float) -> None:
+    """Csy x 0.25 and x 0.5 at 8 s, 3 sensors, seed 42. The location grid used to run
+    steady gains from the leading hypothesis's state, estimated under another value; the
+    slow mode carried that error through the phase. Here the steady location put
+    x 0.25 at 1.93 x the truth (outside its redraw range), and for x 0.5 found no
+    change at all (detected only at +4.3 s). With the exact recursion from a widened
+    covariance the located value is within 25 % of the truth and decided by +2.5 s."""
+    row = fault_row(0, factor, 3, 42, seconds=18.0, fault_at_s=8.0, particles=1000,
+                    mode="fast")
+    assert row["detect_s"] is not None and row["detect_s"] <= 2.5, row
+    assert 0.8 <= row["located_rel"] <= 1.25, row
+    assert row["wrong"] == 0 and row["before"] == 0 and row["alerts_healthy"] == 0, row
+
+
+@pytest.mark.slow
+def test_an_inconclusive_location_sums_on_until_it_decides() -> None:
+    """Csy x 0.5 at 8 s, 3 sensors, 2 x the model's sensor noise, seed 93. Its first
+    location ends with the best value ahead of the reference by less than h/2; with
+    the location phase fixed at 1 s the bank never detects the change in 10 s. Summing
+    on (up to ``locate_max_s``) detects it on Csy, inside the redraw range."""
+    fixed, row = (fault_row(0, 0.5, 3, 93, seconds=18.0, fault_at_s=8.0, particles=1000,
+                            mode="fast", noise_scale=2.0, locate_max_s=m) for m in (1.0, None))
+    assert fixed["detect_s"] is None and fixed["locate_max_s"] == 1.0, fixed
+    assert row["detect_s"] is not None and row["detect_s"] <= 5.0, row
+    assert row["detect_s"] - row["confirmed_s"] > 1.0, row          # summed on
+    assert 1 / 1.52 <= row["located_rel"] <= 1.52, row
+    assert row["wrong"] == 0 and row["before"] == 0 and row["alerts_healthy"] == 0, row
+
+
+def _locating_bank(seed: int) -> tuple[RBPF, list[Sample], int]:
+    """A 256-particle filter on a Csy x 0.25 step at 6 s, stepped until its bank
+    locates; the filter, the samples and the index of the next sample."""
+    _, Y = fault_data(0, 0.25, 3, seed=seed, seconds=12.0, fault_at_s=6.0)
+    a = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=256, sensors=3, seed=seed, mode="fast"))
+    smp = _samples(Y)
+    k = 0
+    while not (a._bank is not None and a._bank.locating):
+        a.step(smp[k])
+        k += 1
+        assert k < len(smp), "the bank never started locating"
+    return a, smp, k
+
+
+@pytest.mark.slow
+def test_a_location_that_finds_nothing_restarts_the_filters_from_the_reference() -> None:
+    """A location phase whose best value does not beat the reference (its sums set
+    below h/2 here) ends without a detection, and every filter continues from the
+    reference's state: the grid's states fit only their own values."""
+    a, _, _ = _locating_bank(14)
+    bank = a._bank
+    assert bank is not None
+    bank.g[:] = np.linspace(-5.0, 5.0, bank.n_hyp)
+    ref_state = bank._state_of(0)
+    assert bank._located(10.0) is None and not bank.locating and bank.active
+    x = from_lanes(bank.x, bank.m, (NZ,))
+    np.testing.assert_array_equal(x, np.repeat(ref_state[None], bank.m, 0))
+    assert np.all(bank.g == 0.0) and bank.count == 0
+
+
+@pytest.mark.slow
+def test_a_checkpoint_without_the_location_covariances_restarts_them() -> None:
+    """A checkpoint written while locating by a version without ``bank_P``: the grid's
+    covariances start again from the widened steady ones, and the filter runs on."""
+    from gateway.estimator import checkpoint as ckpt
+
+    a, smp, k = _locating_bank(14)
+    meta, arrays = ckpt.unpack(a.checkpoint())
+    del arrays["bank_P"]
+    b = RBPF.restore(ckpt.pack(meta, arrays))
+    assert b._bank is not None and b._bank.locating
+    np.testing.assert_array_equal(b._bank.P, b._bank._start_cov())
+    b.run(smp[k:], output_every=50)
+    assert b.n_fault_detections >= 1
+
+
+@pytest.mark.slow
 def test_healthy_data_raise_no_detection() -> None:
     """30 s of nominal data, 3 and 5 sensors: the bank starts and never decides."""
     for sensors in (3, 5):
@@ -92,15 +170,7 @@ def test_healthy_data_raise_no_detection() -> None:
 def test_checkpoint_while_locating_restores_bit_exact() -> None:
     """Checkpoint in the middle of the location phase; both filters then give the same
     estimates, bit for bit, through the detection and after it."""
-    _, Y = fault_data(0, 0.25, 3, seed=14, seconds=12.0, fault_at_s=6.0)
-    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=256, sensors=3, seed=14, mode="fast")
-    a = RBPF(cfg)
-    smp = _samples(Y)
-    k = 0
-    while not (a._bank is not None and a._bank.locating):
-        a.step(smp[k])
-        k += 1
-        assert k < len(smp), "the bank never started locating"
+    a, smp, k = _locating_bank(14)
     b = RBPF.restore(a.checkpoint())
     ea = a.run(smp[k:], output_every=50)
     eb = b.run(smp[k:], output_every=50)
@@ -180,40 +250,52 @@ def test_a_moved_reference_does_not_turn_the_static_yaw_into_a_cusum_rise(sensor
     assert abs(carried - clean) < 0.5, (carried, clean)
 
 
-def _first_decisive_row(g_sum: np.ndarray, left: int, total: int, min_n: int,
+def _first_decisive_row(g_sum: np.ndarray, left: int, n_max: int, n_min: int, n_loc: int,
                         half: float) -> int | None:
     """The location phase's end, sample by sample (what ``_located_row`` vectorises)."""
     for r in range(min(left, len(g_sum))):
+        n = n_max - left + r + 1
         row = g_sum[r]
         best = int(np.argmax(row))
+        lead = row[best]
         far = [row[i] for i in range(len(row)) if abs(i - best) >= 3]
-        if total - left + r + 1 >= min_n and row[best] > half \
-                and row[best] - max(far) >= half:
-            return r
+        if n >= n_min and lead > half and lead - max(far) >= half:
+            return r                                   # the early stop
+        if n >= n_loc and (lead > half or not lead > 0.0):
+            return r                                   # decided: a change, or none
     return left - 1 if left <= len(g_sum) else None
 
 
-@pytest.mark.parametrize("left, min_s", [(1000, 0.1), (700, 0.1), (1000, 0.5),
-                                         (950, 0.1), (300, 1.0), (1000, 2.0)])
-def test_location_ends_at_the_first_decisive_sample(left: int, min_s: float) -> None:
-    """The location sums stop at the first sample, after ``locate_min_s``, where the best
-    grid value beats the reference by h/2 and every value three or more grid steps away
-    by h/2 (else after ``locate_s``); a block that starts inside the phase counts the
-    samples already summed."""
-    bank = FaultBank(FaultBankConfig(locate_min_s=min_s), n_params=3, fs_hz=FS_HZ,
-                     ar_paper=1.0)
+@pytest.mark.parametrize("left, min_s, peak", [
+    (3000, 1.0, 0.04), (3000, 1.0, 0.008), (3000, 1.0, 0.002), (3000, 1.0, -0.01),
+    (3000, 0.1, 0.04), (2500, 1.0, 0.04), (1700, 1.0, 0.008), (3000, 2.0, 0.04),
+    (300, 1.0, 0.002)])
+def test_location_ends_at_the_first_decisive_sample(left: int, min_s: float, peak: float
+                                                    ) -> None:
+    """The location sums stop at the first sample where, after ``locate_min_s``, the
+    best grid value beats the reference and every value three or more grid steps away
+    by h/2 (the early stop); or, after ``locate_s``, the best value beats the reference
+    by h/2 or not at all; else at ``locate_max_s``. A block that starts inside the phase
+    counts the samples already summed."""
+    cfg = FaultBankConfig(locate_min_s=min_s)
+    bank = FaultBank(cfg, n_params=3, fs_hz=FS_HZ, ar_paper=1.0)
     rng = np.random.default_rng(3)
-    k, J = 400, bank.n_hyp
-    slope = np.abs(7 - np.arange(J)) * -0.02 + 0.04          # nats per sample, peak at 7
+    k, J = 3000, bank.n_hyp
+    slope = np.abs(7 - np.arange(J)) * -0.02 + peak           # nats per sample, peak at 7
     d = slope[None] + rng.normal(0.0, 0.05, (k, J))         # per-sample ratios
-    g_sum = np.cumsum(d, axis=0)
-    total = round(FaultBankConfig().locate_s * FS_HZ)
-    want = _first_decisive_row(g_sum, left, total, round(min_s * FS_HZ), 12.5)
+    n_max, n_loc = round(cfg.locate_max_s * FS_HZ), round(cfg.locate_s * FS_HZ)
+    want = _first_decisive_row(np.cumsum(d, axis=0), left, n_max, round(min_s * FS_HZ),
+                               n_loc, 12.5)
     assert bank._located_row(d, left) == want
-    if left == 1000 and min_s == 0.1:
-        assert want is not None and 100 <= want < 399      # decisive inside the block
-    if min_s >= 1.0:
-        assert want == (left - 1 if left <= k else None)    # always the full phase
+    if left == n_max and min_s >= 1.0:
+        if peak == 0.04 or peak < 0:
+            assert want == n_loc - 1            # decided at locate_s, either way
+        elif peak == 0.008:
+            assert want is not None and n_loc - 1 < want < n_max - 1   # decided later
+        else:
+            assert want == n_max - 1            # never decisive: the longest phase
+    if min_s == 0.1:
+        assert want is not None and 100 <= want < n_loc - 1    # the early stop
 
 
 @pytest.mark.slow

@@ -39,6 +39,7 @@ import numpy as np
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
 from gateway.config import EstimatorConfig
+from gateway.estimator.faultbank import FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
@@ -73,12 +74,12 @@ Filter = RBPF | NoiseCheckedStart
 
 def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    sensor_noise: str = "measured", moves_drop_null: bool | None = None,
-                   start_ramp_s: float | None = None, locate_min_s: float | None = None
-                   ) -> Filter:
+                   start_ramp_s: float | None = None, locate_min_s: float | None = None,
+                   locate_max_s: float | None = None) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
     sensor-noise test, the start's likelihood ramp); ``moves_drop_null`` and
-    ``start_ramp_s`` override those options of the filter, ``locate_min_s`` that of its
-    fault bank
+    ``start_ramp_s`` override those options of the filter, ``locate_min_s`` and
+    ``locate_max_s`` those of its fault bank
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`,
     :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
@@ -90,8 +91,11 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
                                     else moves_drop_null),
                    start_ramp_s=(filt.config.start_ramp_s if start_ramp_s is None
                                  else start_ramp_s))
-    if locate_min_s is not None and rbpf.faults is not None:
-        rbpf = replace(rbpf, faults=replace(rbpf.faults, locate_min_s=locate_min_s))
+    if rbpf.faults is not None:
+        bank = rbpf.faults
+        rbpf = replace(rbpf, faults=replace(
+            bank, locate_min_s=bank.locate_min_s if locate_min_s is None else locate_min_s,
+            locate_max_s=bank.locate_max_s if locate_max_s is None else locate_max_s))
     if rbpf == filt.config:
         return filt
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
@@ -129,7 +133,8 @@ def _bank_columns(filt: Filter) -> dict[str, Any]:
     """The fault bank's location settings (None: no bank)."""
     bank = filt.config.faults
     return {"locate_min_s": None if bank is None else bank.locate_min_s,
-            "locate_s": None if bank is None else bank.locate_s}
+            "locate_s": None if bank is None else bank.locate_s,
+            "locate_max_s": None if bank is None else bank.locate_max_s}
 
 
 def _last(filt: Filter) -> tuple[float, str, float, float]:
@@ -149,11 +154,13 @@ def alerts(est: Sequence[Any], act_on_located: bool = True) -> list[tuple[float,
 def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
-              locate_min_s: float | None = None) -> dict[str, Any]:
+              locate_min_s: float | None = None, locate_max_s: float | None = None
+              ) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
-                                             moves_drop_null, locate_min_s=locate_min_s))
+                                             moves_drop_null, locate_min_s=locate_min_s,
+                                             locate_max_s=locate_max_s))
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -195,12 +202,13 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
 
 def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode: str,
                 noise_scale: float = 1.0, sensor_noise: str = "measured",
-                moves_drop_null: bool | None = None, locate_min_s: float | None = None
-                ) -> dict[str, Any]:
+                moves_drop_null: bool | None = None, locate_min_s: float | None = None,
+                locate_max_s: float | None = None) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
-                                             moves_drop_null, locate_min_s=locate_min_s))
+                                             moves_drop_null, locate_min_s=locate_min_s,
+                                             locate_max_s=locate_max_s))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
             "noise_scale": noise_scale, **_noise_columns(filt),
@@ -333,9 +341,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--locate-min-s", type=float, default=None,
                     help="the fault bank's shortest location phase, s (default: the bank's "
                          "own, its full location phase; below it: the early stop)")
+    ap.add_argument("--locate-max-s", type=float, default=None,
+                    help="the fault bank's longest location phase, s (default: the bank's "
+                         "own; its locate_s: no extension of an inconclusive location)")
     args = ap.parse_args(argv)
     if args.locate_min_s is not None and not args.locate_min_s >= 0:
         ap.error(f"expected --locate-min-s >= 0 s, got {args.locate_min_s}")
+    if args.locate_max_s is not None and not args.locate_max_s >= FaultBankConfig.locate_s:
+        ap.error(f"expected --locate-max-s >= {FaultBankConfig.locate_s} s (the location "
+                 f"phase), got {args.locate_max_s}")
     if args.what in ("summary", "plot"):
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
         if args.what == "plot":
@@ -351,14 +365,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     noise_scale=args.noise_scale,
                                     sensor_noise=args.sensor_noise,
                                     moves_drop_null=args.moves_drop_null,
-                                    locate_min_s=args.locate_min_s)]
+                                    locate_min_s=args.locate_min_s,
+                                    locate_max_s=args.locate_max_s)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
                                   mode=args.mode, noise_scale=args.noise_scale,
                                   sensor_noise=args.sensor_noise,
                                   moves_drop_null=args.moves_drop_null,
-                                  locate_min_s=args.locate_min_s)
+                                  locate_min_s=args.locate_min_s,
+                                    locate_max_s=args.locate_max_s)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

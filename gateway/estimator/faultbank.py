@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (503): the watch, confirm and locate phases share one state vector and
+Over 400 lines (590): the watch, confirm and locate phases share one state vector and
 one set of filters; splitting them would pass that state around.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
@@ -20,19 +20,27 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
 - *Confirm.* ``confirm_s`` after a crossing the largest CUSUM, if still over ``h``,
   names the parameter and the side (drop or rise).
 - *Locate.* The hypotheses become a grid over that parameter on that side
-  (:meth:`FaultBank.locate_grid`), every filter restarting from the leading
-  hypothesis's state less its unobservable static-yaw component (a conicity change
-  would otherwise turn that arbitrary component into a transient the data never had,
-  and the grid read it as a larger rise); their log-likelihood ratios to the reference
-  are summed, and the best grid value, if it beats the reference by ``h / 2``, is the
-  :class:`Detection`. Optionally (``locate_min_s`` below ``locate_s``; off by default)
-  the sum stops early, after at least ``locate_min_s``, at the first
-  sample where the best value also leads every grid value outside its redraw range
-  (three grid steps or more away) by ``h / 2``: for a correct model ``exp(-h / 2)``
-  bounds the chance that a value that far from the truth ever leads it by that much
-  (Wald), so the redraw range then holds the truth. Otherwise the sum runs its full
-  ``locate_s``. The estimator then redraws that parameter of every particle over
-  :meth:`FaultBank.redraw_range` and gives every particle the best filter's state.
+  (:meth:`FaultBank.locate_grid`), every filter restarting from the leading hypothesis's
+  state less its unobservable static-yaw component (a conicity change would otherwise
+  turn that arbitrary component into a transient the data never had, and the grid read
+  it as a larger rise). That state was estimated under another value, and this model's
+  slow closed-loop mode (about 8 s) would carry its error through the whole phase under
+  steady gains, biasing the grid towards the value it came from. So each grid filter
+  runs the exact Kalman recursion (:func:`gateway.estimator.kalman.kf_block`) from a
+  covariance ``locate_cov_scale`` times its own steady covariance, which lets it correct
+  that error within the phase. Their log-likelihood ratios to the reference are summed
+  for ``locate_s``, and the best grid value, if it beats the reference by ``h / 2``, is
+  the :class:`Detection`; if it does not beat the reference at all, nothing changed:
+  every filter restarts from the reference's state and the bank watches again. In
+  between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
+  later look costs no more false detections). Optionally (``locate_min_s`` below
+  ``locate_s``; off by default) the sum stops early, after at least ``locate_min_s``, at
+  the first sample where the best value also leads every grid value outside its redraw
+  range (three grid steps or more away) by ``h / 2``: for a correct model ``exp(-h /
+  2)`` bounds the chance that a value that far from the truth ever leads it by that much
+  (Wald), so the redraw range then holds the truth. The estimator then redraws that
+  parameter of every particle over :meth:`FaultBank.redraw_range` and gives every
+  particle the best filter's state.
 
 Life cycle: the bank is idle until the cloud has ``start_after_s`` of updated data
 since its filters started and every parameter's posterior std is within
@@ -43,8 +51,9 @@ a filter at another theta there, or at a start, loses its static-yaw component f
 because a moved reference turns it into a false CUSUM rise. Samples without data are
 predicted; the estimator stops the bank at a sample with only some sensors.
 
-State is four arrays (:meth:`FaultBank.arrays`), so checkpoints stay bit-exact; the
-gains are recomputed from them and the speed on restore. No I/O. Measured in
+State is five arrays (:meth:`FaultBank.arrays`, the location grid's covariances among
+them), so checkpoints stay bit-exact; the gains are recomputed from them and the speed
+on restore. No I/O. Measured in
 docs/estimator.md "Change detection".
 """
 
@@ -56,13 +65,14 @@ import numpy as np
 
 from gateway.errors import EstimatorError
 from gateway.estimator.batch_expm import DiscreteBatch
-from gateway.estimator.kalman import from_lanes, n_chunks, to_lanes
+from gateway.estimator.kalman import from_lanes, kf_block, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.steady import (
     NullVectors,
     SteadyGains,
     kf_steady_block,
     steady_gains,
+    steady_posterior,
     without_null,
 )
 from gateway.model.coordinates import NZ
@@ -84,9 +94,15 @@ class FaultBankConfig:
     parameter at which it starts; ``hold_s``: data time (s) its CUSUMs stay at 0 after a
     start or a detection; ``confirm_s``: data time (s) from a crossing to the decision,
     which takes the largest CUSUM then (parameter and side); ``locate_s``: data time (s)
-    over which the location grid's log-likelihoods are summed at most; ``locate_min_s``:
-    at least (the early stop, module docstring; ``locate_min_s >= locate_s``: always
-    ``locate_s``, the default: the early stop's locations were biased, docs/estimator.md).
+    over which the location grid's log-likelihoods are summed before a decision;
+    ``locate_max_s``: at most (an inconclusive sum, the best value ahead of the
+    reference by less than ``h / 2``, goes on until the lead passes ``h / 2`` or
+    vanishes; ``locate_max_s == locate_s``: never); ``locate_min_s``: at least (the
+    early stop, module docstring; ``locate_min_s >= locate_s``: off, the default: the
+    early stop's locations were biased, docs/estimator.md);
+    ``locate_cov_scale``: the location grid's exact filters start from this multiple of
+    their steady covariance (module docstring; measured in docs/estimator.md, "A fair
+    location").
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -97,6 +113,8 @@ class FaultBankConfig:
     confirm_s: float = 0.25
     locate_s: float = 1.0
     locate_min_s: float = 1.0
+    locate_max_s: float = 3.0
+    locate_cov_scale: float = 100.0
 
     def __post_init__(self) -> None:
         f = np.asarray(self.factors, dtype=float)
@@ -107,6 +125,12 @@ class FaultBankConfig:
         if not self.h_nats > 0:
             raise EstimatorError(f"expected a positive CUSUM threshold in nats, "
                                  f"got {self.h_nats}")
+        if not self.locate_max_s >= self.locate_s:
+            raise EstimatorError(f"expected locate_max_s >= locate_s ({self.locate_s} s), "
+                                 f"got {self.locate_max_s}")
+        if not self.locate_cov_scale >= 1.0:
+            raise EstimatorError(f"expected locate_cov_scale >= 1 (a multiple of the steady "
+                                 f"covariance), got {self.locate_cov_scale}")
         for name in ("start_after_s", "max_rel_std", "hold_s", "confirm_s", "locate_s",
                      "locate_min_s"):
             if not getattr(self, name) >= 0:
@@ -128,6 +152,10 @@ class Detection:
     confirmed_s: float
     step: float
 
+
+_NO_RESET = np.zeros((NZ, NZ))
+"""The covariance a failed location filter restarts from (its log-likelihood is then
+-inf for the rest of the phase, so no value is needed)."""
 
 # layout of the bank's scalar vector
 _ACTIVE, _HOLD, _LAST_T, _LAST_P, _LAST_F, _COUNT, _PEND, _MODE, _LOC_P, _LOC_SIDE, _LEFT, \
@@ -151,6 +179,7 @@ class FaultBank:
         self.ref = np.ones(self.n_params)          # theta_ref (d,), SI (and Ar)
         self.g = np.zeros(self.n_hyp)              # CUSUMs, nats
         self.x = np.zeros((self._nch, NZ * LANES))  # filter states, lane layout
+        self.P = np.zeros((self._nch, NZ * NZ * LANES))  # covariances while locating
         self.vec = np.zeros(13)                    # active, hold left, last detection
         self._gains: SteadyGains | None = None
         self._phi = np.empty((self._nch, NZ * NZ * LANES))
@@ -183,13 +212,15 @@ class FaultBank:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The state to checkpoint (the gains are a function of it and the speed)."""
-        return {"bank_ref": self.ref, "bank_g": self.g, "bank_x": self.x, "bank_vec": self.vec}
+        return {"bank_ref": self.ref, "bank_g": self.g, "bank_x": self.x, "bank_vec": self.vec,
+                "bank_P": self.P}
 
     def load(self, arrays: dict[str, np.ndarray]) -> None:
         """Restore :meth:`arrays` output (after :meth:`set_model`): the gains are solved
-        again from it, bit-identical."""
+        again from it, bit-identical. A checkpoint from before the exact location phase
+        has no ``bank_P``: if it was locating, the grid's covariances start again there."""
         for key, attr in (("bank_ref", "ref"), ("bank_g", "g"), ("bank_x", "x"),
-                          ("bank_vec", "vec")):
+                          ("bank_vec", "vec"), ("bank_P", "P")):
             if key in arrays:
                 if arrays[key].shape != getattr(self, attr).shape:
                     raise EstimatorError(f"expected {key} of shape {getattr(self, attr).shape}"
@@ -197,20 +228,23 @@ class FaultBank:
                 setattr(self, attr, np.array(arrays[key], dtype=float))
         if self.active and self._model is not None:
             self._solve()
+            if self.locating and "bank_P" not in arrays:
+                self.P = self._start_cov()
 
     def snapshot(self) -> tuple[np.ndarray, ...]:
         """A copy of the whole state, gains included, for :meth:`rewind` (the estimator
         scans ahead to find where a detection falls, then steps again up to there)."""
         assert self._gains is not None
         gains = self._gains
-        return tuple(a.copy() for a in (self.ref, self.g, self.x, self.vec, self._phi,
+        return tuple(a.copy() for a in (self.ref, self.g, self.x, self.P, self.vec, self._phi,
                                         self._qd, gains.p_pred, gains.g, gains.s, gains.c0,
                                         gains.iters))
 
     def rewind(self, snap: tuple[np.ndarray, ...]) -> None:
         """Back to a :meth:`snapshot`."""
-        self.ref, self.g, self.x, self.vec, self._phi, self._qd = (a.copy() for a in snap[:6])
-        self._gains = SteadyGains(*(a.copy() for a in snap[6:]))
+        self.ref, self.g, self.x, self.P, self.vec, self._phi, self._qd = (
+            a.copy() for a in snap[:7])
+        self._gains = SteadyGains(*(a.copy() for a in snap[7:]))
 
     def stop(self) -> None:
         """Idle until :meth:`start` (a filter restart, a sensor outage, a reseed)."""
@@ -313,6 +347,8 @@ class FaultBank:
         phase (returns None, having consumed ``_part`` samples); the end of the location
         phase returns the detection."""
         assert self._gains is not None and self._model is not None
+        if self.vec[_MODE] == _LOCATE:
+            return self._locate_part(Y, full, t0_s, dt_s)
         k, H = len(Y), self._model[2]
         LL = np.empty((k, self._nch * LANES))
         NIS = np.empty_like(LL)
@@ -320,16 +356,6 @@ class FaultBank:
         kf_steady_block(self.x, self._phi, H, Y, full, self._gains, LL, NIS)
         d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)     # (k, J)
         self._part = k
-        if self.vec[_MODE] == _LOCATE:
-            left = int(self.vec[_LEFT])
-            j = self._located_row(d, left)
-            if j is None:
-                self.g += d.sum(axis=0)
-                self.vec[_LEFT] = left - k
-                return None
-            self._rerun(x0, Y, full, j)
-            self.g += d[:j + 1].sum(axis=0)     # the sums as before the early stop, bit for bit
-            return self._located(t0_s + j * dt_s)
         hold = int(self.vec[_HOLD])
         held = min(hold, k)
         d[:held] = 0.0
@@ -339,18 +365,50 @@ class FaultBank:
         if at is None:
             self.g = g_path[-1].copy()
             return None
-        self._rerun(x0, Y, full, at)
+        self.x = x0
+        self._step(Y[:at + 1], full[:at + 1])
+        self._part = at + 1
         self._locate(int(np.argmax(g_path[at])), t0_s + at * dt_s)
         return None
 
-    def _rerun(self, x0: np.ndarray, Y: np.ndarray, full: np.ndarray, j: int) -> None:
-        """The states stepped from ``x0`` through sample ``j`` only."""
+    def _locate_part(self, Y: np.ndarray, full: np.ndarray, t0_s: float, dt_s: float
+                     ) -> Detection | None:
+        """The location phase over up to the samples it has left: the exact recursion
+        (module docstring), the log-likelihood ratios summed; the detection (or None)
+        at its end."""
+        left = int(self.vec[_LEFT])
+        n = min(len(Y), left)
+        Y, full = Y[:n], full[:n]
+        x0, P0 = self.x.copy(), self.P.copy()
+        LL = self._step(Y, full)
+        d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)     # (n, J)
+        d[~np.isfinite(d)] = -np.inf           # a failed filter (or reference) loses
+        self._part = n
+        j = self._located_row(d, left)
+        if j is None:
+            self.g += d.sum(axis=0)
+            self.vec[_LEFT] = left - n
+            return None
+        if j < n - 1:                          # the early stop: the states up to it only
+            self.x, self.P = x0, P0
+            self._step(Y[:j + 1], full[:j + 1])
+            self._part = j + 1
+        self.g += d[:j + 1].sum(axis=0)     # the sums as before the early stop, bit for bit
+        return self._located(t0_s + j * dt_s)
+
+    def _step(self, Y: np.ndarray, full: np.ndarray) -> np.ndarray:
+        """Every filter stepped over ``Y`` (k, ny) in place: the steady gains while
+        watching, the exact recursion while locating; the log-likelihoods (k, lanes)."""
         assert self._gains is not None and self._model is not None
-        self._part = j + 1
-        self.x = x0
-        LL = np.empty((j + 1, self._nch * LANES))
-        kf_steady_block(self.x, self._phi, self._model[2], Y[:j + 1], full[:j + 1],
-                        self._gains, LL, np.empty_like(LL))
+        LL = np.empty((len(Y), self._nch * LANES))
+        if self.vec[_MODE] == _LOCATE:
+            kf_block(self.x, self.P, self._phi, self._qd, self._model[2], self._model[3],
+                     np.ascontiguousarray(Y), np.ascontiguousarray(full), _NO_RESET, LL,
+                     np.empty_like(LL))
+        else:
+            kf_steady_block(self.x, self._phi, self._model[2], Y, full, self._gains, LL,
+                            np.empty_like(LL))
+        return LL
 
     def _state_of(self, filt: int) -> np.ndarray:
         """Filter ``filt``'s state (16,) less its component along the static-yaw null
@@ -368,11 +426,22 @@ class FaultBank:
         state = self._state_of(1 + best)
         self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
         self.vec[_LOC_SIDE] = -1.0 if self.factors[fi] < 1.0 else 1.0
-        self.vec[_LEFT] = self._locate_samples()
+        self.vec[_LEFT] = self._locate_samples(self.config.locate_max_s)
         self.vec[_CONF_T] = t_s
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
         self._solve()
+        self.P = self._start_cov()
+
+    def _start_cov(self) -> np.ndarray:
+        """The location grid's starting covariances (lane layout): ``locate_cov_scale``
+        times each filter's steady updated covariance at its own theta (module
+        docstring)."""
+        assert self._gains is not None and self._model is not None
+        _, null, H, r, _ = self._model
+        v0 = null(self.hypotheses()[:, :N_THETA])
+        P = steady_posterior(self._gains, v0, H, r, self.m) * self.config.locate_cov_scale
+        return to_lanes(P.reshape(self.m, NZ * NZ))
 
     def locate_grid(self, side: float | None = None) -> np.ndarray:
         """The location phase's factors (J,): log-spaced from half the smallest factor
@@ -386,28 +455,42 @@ class FaultBank:
 
     def _located_row(self, d: np.ndarray, left: int) -> int | None:
         """The sample of this block, with log-likelihood ratios ``d`` (k, J), that ends
-        the location phase, or None (``left`` samples were left before this block): the
-        first, after ``locate_min_s``, where the summed best value beats the reference by
-        ``h / 2`` and leads every grid value three or more steps away by ``h / 2``; else
-        the last of the ``locate_s`` samples, if in this block."""
+        the location phase, or None (``left`` samples were left before this block). The
+        first sample where, with ``n`` samples summed:
+
+        - ``n >= locate_min_s`` (the early stop): the best value beats the reference by
+          ``h / 2`` and every grid value three or more steps away by ``h / 2``;
+        - ``n >= locate_s``: the best value beats the reference by ``h / 2`` (a
+          detection) or does not beat it at all (no change);
+        - ``n`` reaches ``locate_max_s``.
+
+        Between ``locate_s`` and ``locate_max_s`` the sum goes on only while the best
+        value is ahead by less than ``h / 2``: for a correct model ``exp(-h / 2)`` bounds
+        the chance that a wrong value ever leads the truth by that much (Wald), so a
+        later look costs no more false detections than the first."""
         k, half = min(left, len(d)), self.config.h_nats / 2.0
-        total = self._locate_samples()
-        first = max(0, round(self.config.locate_min_s * self.fs_hz) - (total - left) - 1)
-        if first < k:                         # the early stop can fire in this block
+        done = self._locate_samples(self.config.locate_max_s) - left
+        n_min = round(self.config.locate_min_s * self.fs_hz)
+        n_loc = self._locate_samples(self.config.locate_s)
+        first = max(0, min(n_min, n_loc) - done - 1)
+        if first < k:                         # a stop can fire in this block
             rows = (self.g[None] + np.cumsum(d[:k], axis=0))[first:]
+            n = done + first + 1 + np.arange(len(rows))
             best = np.argmax(rows, axis=1)
             lead = rows[np.arange(len(rows)), best]
             idx = np.arange(rows.shape[1])
             far = np.abs(idx[None] - best[:, None]) >= REDRAW_STEPS
             runner = np.where(far, rows, -np.inf).max(axis=1)
-            stop = np.nonzero((lead > half) & (lead - runner >= half))[0]
+            early = (n >= n_min) & (lead > half) & (lead - runner >= half)
+            settled = (n >= n_loc) & ((lead > half) | ~(lead > 0.0))
+            stop = np.nonzero(early | settled)[0]
             if len(stop):
                 return first + int(stop[0])
         return left - 1 if left <= k else None
 
-    def _locate_samples(self) -> int:
-        """Samples in a full location phase (``locate_s``)."""
-        return max(1, round(self.config.locate_s * self.fs_hz))
+    def _locate_samples(self, seconds: float) -> int:
+        """Samples in ``seconds`` of location phase (at least one)."""
+        return max(1, round(seconds * self.fs_hz))
 
     def _located(self, t_s: float) -> Detection | None:
         """The location phase's answer: the best grid value, if it beats the reference
@@ -416,6 +499,9 @@ class FaultBank:
         best = int(np.argmax(self.g))
         p = int(self.vec[_LOC_P])
         if not self.g[best] > self.config.h_nats / 2.0:
+            # no change: every filter restarts from the reference's state (consistent
+            # with theta_ref), as at a start; the grid's states fit only their own values
+            self.x[:] = to_lanes(np.repeat(self._state_of(0)[None], self.m, 0))
             self.vec[_MODE] = _WATCH
             self._hold()
             self._solve()

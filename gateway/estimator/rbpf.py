@@ -817,8 +817,10 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
     if d.get("faults") is not None:
         bank: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
                                 for k, v in d["faults"].items()}
-        # a checkpoint from before the early stop summed the full location phase
+        # a checkpoint from before the early stop (or the extension) summed the full
+        # location phase, and no more
         bank.setdefault("locate_min_s", bank.get("locate_s", FaultBankConfig.locate_s))
+        bank.setdefault("locate_max_s", bank.get("locate_s", FaultBankConfig.locate_s))
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
