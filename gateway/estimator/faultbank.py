@@ -154,8 +154,8 @@ class Detection:
 
 
 _NO_RESET = np.zeros((NZ, NZ))
-"""The covariance a failed location filter restarts from (its log-likelihood is then
--inf for the rest of the phase, so no value is needed)."""
+"""The covariance a failed location filter restarts from: its summed log-likelihood
+ratio is -inf from then on, so no value is needed."""
 
 # layout of the bank's scalar vector
 _ACTIVE, _HOLD, _LAST_T, _LAST_P, _LAST_F, _COUNT, _PEND, _MODE, _LOC_P, _LOC_SIDE, _LEFT, \
@@ -393,7 +393,7 @@ class FaultBank:
             self.x, self.P = x0, P0
             self._step(Y[:j + 1], full[:j + 1])
             self._part = j + 1
-        self.g += d[:j + 1].sum(axis=0)     # the sums as before the early stop, bit for bit
+        self.g += d[:j + 1].sum(axis=0)
         return self._located(t0_s + j * dt_s)
 
     def _step(self, Y: np.ndarray, full: np.ndarray) -> np.ndarray:
