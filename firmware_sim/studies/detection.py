@@ -366,7 +366,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     sensor_noise=args.sensor_noise,
                                     moves_drop_null=args.moves_drop_null,
                                     locate_min_s=args.locate_min_s,
-                                    locate_max_s=args.locate_max_s)]
+                                  locate_max_s=args.locate_max_s)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
@@ -374,7 +374,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   sensor_noise=args.sensor_noise,
                                   moves_drop_null=args.moves_drop_null,
                                   locate_min_s=args.locate_min_s,
-                                    locate_max_s=args.locate_max_s)
+                                  locate_max_s=args.locate_max_s)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

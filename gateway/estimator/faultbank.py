@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (590): the watch, confirm and locate phases share one state vector and
+Over 400 lines (593): the watch, confirm and locate phases share one state vector and
 one set of filters; splitting them would pass that state around.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
@@ -227,9 +227,9 @@ class FaultBank:
                                          f", got {arrays[key].shape}")
                 setattr(self, attr, np.array(arrays[key], dtype=float))
         if self.active and self._model is not None:
-            self._solve()
+            v0 = self._solve()
             if self.locating and "bank_P" not in arrays:
-                self.P = self._start_cov()
+                self.P = self._start_cov(v0)
 
     def snapshot(self) -> tuple[np.ndarray, ...]:
         """A copy of the whole state, gains included, for :meth:`rewind` (the estimator
@@ -315,13 +315,17 @@ class FaultBank:
         assert self._model is not None
         return without_null(x, self._model[1](theta[:, :N_THETA]))
 
-    def _solve(self) -> None:
+    def _solve(self) -> np.ndarray:
+        """Every filter's discretisation and steady gains at its theta; returns their
+        static-yaw null vectors (m, 16)."""
         assert self._model is not None and self._gains is not None
         disc, null, H, r, q_unit = self._model
         th = self.hypotheses()
         ar = th[:, 3] if self.n_params > N_THETA else np.full(self.m, self.ar_paper)
         disc.compute(th[:, :N_THETA], q_unit * ar, self._phi, self._qd)
-        steady_gains(self._phi, self._qd, to_lanes(null(th[:, :N_THETA])), H, r, self._gains)
+        v0 = null(th[:, :N_THETA])
+        steady_gains(self._phi, self._qd, to_lanes(v0), H, r, self._gains)
+        return v0
 
     # ------------------------------------------------------------------ step
     def scan(self, Y: np.ndarray, full: np.ndarray, t0_s: float, dt_s: float
@@ -349,11 +353,9 @@ class FaultBank:
         assert self._gains is not None and self._model is not None
         if self.vec[_MODE] == _LOCATE:
             return self._locate_part(Y, full, t0_s, dt_s)
-        k, H = len(Y), self._model[2]
-        LL = np.empty((k, self._nch * LANES))
-        NIS = np.empty_like(LL)
+        k = len(Y)
         x0 = self.x.copy()
-        kf_steady_block(self.x, self._phi, H, Y, full, self._gains, LL, NIS)
+        LL = self._step(Y, full)
         d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)     # (k, J)
         self._part = k
         hold = int(self.vec[_HOLD])
@@ -430,16 +432,17 @@ class FaultBank:
         self.vec[_CONF_T] = t_s
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
-        self._solve()
-        self.P = self._start_cov()
+        self.P = self._start_cov(self._solve())
 
-    def _start_cov(self) -> np.ndarray:
+    def _start_cov(self, v0: np.ndarray | None = None) -> np.ndarray:
         """The location grid's starting covariances (lane layout): ``locate_cov_scale``
         times each filter's steady updated covariance at its own theta (module
-        docstring)."""
+        docstring), from the gains and null vectors ``v0`` (m, 16) of :meth:`_solve`
+        (None: solved here)."""
         assert self._gains is not None and self._model is not None
         _, null, H, r, _ = self._model
-        v0 = null(self.hypotheses()[:, :N_THETA])
+        if v0 is None:
+            v0 = null(self.hypotheses()[:, :N_THETA])
         P = steady_posterior(self._gains, v0, H, r, self.m) * self.config.locate_cov_scale
         return to_lanes(P.reshape(self.m, NZ * NZ))
 
