@@ -16,7 +16,7 @@ import pytest
 from firmware_sim.studies.sweep import bench_data, filter_config
 from gateway.cli import main
 from gateway.estimator.rbpf import RBPF
-from gateway.estimator.threads import kernel_threads, max_threads
+from gateway.estimator.threads import kernel_threads, max_threads, threading_layer
 from gateway.model.vehicle import AR_PAPER_DEFAULT
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -72,6 +72,7 @@ def test_estimator_keeps_its_keys_and_adds_fast_mode(capsys):
     assert est["ratio_fast_naive_whole_run"] == pytest.approx(
         est["fast_rtf_whole_run"] / est["naive_rtf"])
     assert est["fast_warmup_s"] == 0.01
+    assert est["threading_layer"] == threading_layer() != "unset"   # what the kernels ran on
     # the counts come from a filter in each mode over the same data with the same seed
     assert resamples("fast", 32, 0.01) != resamples("exact", 32, 0.01), "pick another SEED"
     assert (est["fast_resamples_convergence"] + est["fast_resamples_steady"]

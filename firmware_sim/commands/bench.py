@@ -64,6 +64,7 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
         naive_rtf,
         time_filter,
     )
+    from gateway.estimator.threads import threading_layer
 
     m = args.particles
     data = bench_data(args.seconds, args.seed)
@@ -74,6 +75,7 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
     naive = naive_rtf(data, m, args.naive_steps, args.ar_paper)
     return {"particles": m, "sensors": SENSORS, "rate_hz": FS_HZ, "seconds": args.seconds,
             "threads": exact.threads, "numba_threads": exact.threads, **_cores(),
+            "threading_layer": threading_layer(),
             "exact_rtf_whole_run": exact.rtf_whole_run, "exact_rtf_steady": exact.rtf_steady,
             "steady_after_s": args.steady_after_s,
             "resamples_convergence": exact.resamples_convergence,
