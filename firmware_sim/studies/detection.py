@@ -298,7 +298,9 @@ def plot(rows: Sequence[dict[str, Any]], path: str) -> None:
     plt.close(fig)
 
 
-def _case(text: str) -> tuple[int, float]:
+def fault_case(text: str) -> tuple[int, float]:
+    """An argparse type: ``PARAMETER:FACTOR`` (a parameter name or its prefix) as
+    (parameter index, factor)."""
     name, _, factor = text.partition(":")
     matches = [i for i, p in enumerate(PARAM_NAMES) if p.startswith(name)]
     try:
@@ -318,7 +320,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("what", choices=("faults", "nominal", "summary", "plot"),
                     help="summary / plot: read the rows (JSON lines) from stdin and print "
                          "one per case / write the PNG --plot")
-    ap.add_argument("--cases", type=_case, nargs="+", default=list(FAULTS),
+    ap.add_argument("--cases", type=fault_case, nargs="+", default=list(FAULTS),
                     metavar="PARAMETER:FACTOR", help="faults (default: csy:0.25 csy:0.5 "
                     "csay:0.3 csay:0.5)")
     ap.add_argument("--plot", default="detection.png", help="plot: the PNG to write")
