@@ -29,6 +29,9 @@ def test_half_way_nodes_move_lambda_with_linear_but_not_with_sinc(tmp_path):
             rows = {case: run_case(seed, case, interpolation, 3, 10.0, 1000, "nominal",
                                    tmp_path) for case in ("aligned", "half")}
             d.append(rows["half"]["rel"][LAMBDA] - rows["aligned"]["rel"][LAMBDA])
+            if interpolation == "sinc":        # the default, a healthy vehicle: no alert
+                for row in rows.values():
+                    assert row["alerts"] == [], row
         diff[interpolation] = float(np.mean(d))
     assert abs(diff["sinc"]) < 0.015, diff
     assert diff["linear"] < -0.015, diff

@@ -17,8 +17,10 @@ given ``[resampler] interpolation``:
 
 Without drift every case draws the same noise for the same sample, so ``half`` and
 ``phase`` against ``aligned`` of the same seed is the same data at another node timing.
-Rows (JSON lines on stdout): the final estimate's error against the truth, its z and
-stated sigma per parameter. ``summary FILE...`` prints the table of docs/resampler.md
+Rows (JSON lines on stdout): the final estimate's error against the truth at the start
+(``rel``, ``z``) and at the end (``rel_end``: a fault scenario's new values), the stated
+sigma per parameter, and the alerts raised (data time, parameter, severity; ``t0_s``
+the first estimate's data time). ``summary FILE...`` prints the table of docs/resampler.md
 ("Node timing"): mean ± standard error over seeds, truth within 2 sigma, and the paired
 difference to ``aligned``. Data seed = filter seed = the seed; the clocks' random
 draws from 10000 + seed. Not used by the service; a measuring tool.
@@ -46,6 +48,7 @@ from firmware_sim.simulation import SimConfig, Simulation
 from gateway.config import INTERPOLATIONS, Config
 from gateway.model.vehicle import PARAM_NAMES
 from gateway.offline.replay import replay
+from gateway.records import AlertState
 
 CASES = ("aligned", "half", "phase", "drift")
 
@@ -80,6 +83,7 @@ def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: fl
     """One replay: the final estimate against the truth."""
     sim = Simulation(get_scenario(scenario), SimConfig(duration_s=seconds, seed=seed))
     truth = sim.scenario.theta(np.array([0.0]), seconds)[0]
+    truth_end = sim.scenario.theta(np.array([seconds]), seconds)[0]
     set_clocks(sim, case, np.random.default_rng(10_000 + seed))
     log_path = workdir / f"{scenario}-{seed}-{case}.log"
     if not log_path.exists():
@@ -90,12 +94,17 @@ def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: fl
         estimator=dataclasses.replace(base.estimator, particles=particles, sensors=sensors,
                                       seed=seed, sensor_noise=_sensor_noise(interpolation)))
     wall0 = time.monotonic()
-    est = replay(log_path, cfg).estimates[-1]
+    result = replay(log_path, cfg)
+    est = result.estimates[-1]
     return {"seed": seed, "case": case, "interpolation": interpolation, "sensors": sensors,
             "particles": particles, "scenario": scenario, "t_s": est.t_s,
             "rel": [est.mean[i] / truth[i] - 1 for i in range(3)],
             "z": [(est.mean[i] - truth[i]) / est.std[i] for i in range(3)],
             "sigma_rel": [est.std[i] / est.mean[i] for i in range(3)],
+            "rel_end": [est.mean[i] / truth_end[i] - 1 for i in range(3)],
+            "t0_s": result.estimates[0].t_s,
+            "alerts": [[a.t_s, a.parameter, a.severity.name] for a in result.alerts
+                       if a.state == AlertState.RAISED],
             "wall_s": round(time.monotonic() - wall0, 2)}
 
 
