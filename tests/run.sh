@@ -29,6 +29,13 @@ echo "== import layers (lint-imports: [tool.importlinter] in pyproject.toml)"
 echo "== estimator kernels into numba's cache, one per core (python -m gateway.estimator.precompile)"
 .venv/bin/python -m gateway.estimator.precompile
 echo "== pytest"
+# Reproducible floats: OpenBLAS (in numpy and scipy) picks its kernels by CPU at load
+# time, and their rounding moves a particle filter's Monte Carlo path (the golden files,
+# single-record tests). Pin the Haswell (AVX2) kernels on x86-64 unless set already; the
+# machines this project is built on set OPENBLAS_CORETYPE=Haswell themselves.
+if [ -z "${OPENBLAS_CORETYPE:-}" ] && grep -qw avx2 /proc/cpuinfo 2>/dev/null; then
+  export OPENBLAS_CORETYPE=Haswell
+fi
 .venv/bin/python -m pytest "$@"
 
 # ---- vcan suite (issue 7: tests/vm/, tests/vcan/, docs/vcan.md) --------------------

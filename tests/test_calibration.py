@@ -31,25 +31,26 @@ def test_stated_sigma_covers_the_truth_and_is_not_below_the_ml_sigma(sensors: in
 
 
 @pytest.mark.slow
-def test_dropping_the_null_component_at_moves_removes_a_start_up_outlier() -> None:
+def test_the_service_filter_holds_a_start_up_outlier_record() -> None:
     """5 sensors, paper scenario, the campaign's worst record (seed 10, 20 s long) read at
-    5 s, without the start's likelihood ramp (``start_ramp_s`` = 0, the service's filter
-    until 2026-11-26): with whole states at the moves (``moves_drop_null=False``, the
-    default until 2026-11-25) the filter stands at Csy +12 % and lambda +9.7 %, 6.6 and
-    6.0 sigma from the truth; with the static-yaw component dropped at the moves Csy is
-    back within 3 sigma and lambda at 3.9 sigma: reduced, not gone. The service's filter
-    today (both) is within 4 sigma on every parameter, the issue's bound for a single
-    case (the ramp alone removes this outlier too: docs/estimator.md "Calibration of the
-    stated sigma")."""
+    5 s. Without the start's likelihood ramp and with whole states at the moves (the
+    service's filter until 2026-11-25) it is an outlier: Csy 6.6-7.1 sigma from the
+    truth. The service's filter today (the ramp, the static-yaw component dropped at the
+    moves) is within 4 sigma on every parameter, the issue's bound for a single case.
+
+    Until 2026-11-26 this test also required the moves' static-yaw step alone (no ramp)
+    to bring Csy within 3 sigma. That held with OpenBLAS's SkylakeX kernels (Csy 1.0,
+    lambda 3.9 sigma) and not with its Haswell kernels (Csy 5.0, lambda 4.6 sigma): one
+    record's Monte Carlo path, moved by the rounding of another BLAS kernel. The outcome
+    of both the service's filter and the whole-state filter is the same with both
+    kernels (docs/estimator.md "Calibration of the stated sigma")."""
     at = (5.0, 20.0)                      # the record's length decides its noise draw
     service = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at)[0]
     assert service["moves_drop_null"] and service["start_ramp_s"] > 0
     assert service["t_s"] == 5.0 and all(abs(z) <= 4.0 for z in service["z"]), service
-    row = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at, start_ramp_s=0.0)[0]
-    assert abs(row["z"][0]) <= 3.0 and all(abs(z) <= 4.0 for z in row["z"]), row
     whole = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at, moves_drop_null=False,
                      start_ramp_s=0.0)[0]
-    assert abs(whole["z"][0]) > 4.0 and abs(whole["z"][2]) > 4.0, whole
+    assert abs(whole["z"][0]) > 4.0, whole
 
 
 @pytest.mark.slow

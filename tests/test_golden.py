@@ -13,7 +13,11 @@ change behaviour unnoticed. Fixtures in ``tests/golden/``:
 
 Volatile (machine- or path-dependent) fields are replaced by ``"<masked>"``:
 :data:`MASKED`. Everything else, floats included, must match byte for byte.
-A deliberate behaviour change regenerates the fixtures:
+The floats depend on OpenBLAS's kernels, which OpenBLAS picks by CPU: ``tests/run.sh``
+pins the Haswell (AVX2) ones, as the machines here do (``OPENBLAS_CORETYPE=Haswell``).
+The fixtures were recorded under that pin on 2026-11-26; before, they had been recorded
+with the SkylakeX kernels of an Intel host, and the code of 17c276b reproduces the new
+ones byte for byte under the pin. A deliberate behaviour change regenerates the fixtures:
 ``RAILGW_GOLDEN_UPDATE=1 pytest tests/test_golden.py`` (and says why in the commit).
 """
 
