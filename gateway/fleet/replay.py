@@ -146,7 +146,9 @@ def replay_store(store: Store, cfg: Config, client: Any, *, attempts_dir: str | 
     stored = [r for r in store.runs() if r.grid_points > 0]
     runs = [r for r in stored if r.frontend == frontend]
     todo = [r for r in runs if not result_path(root, version, r).exists()]
-    workers = len(client.scheduler_info().get("workers", {}))
+    # a direct call to the scheduler: Client.scheduler_info() returns a cached identity
+    # that the client's periodic refresh can overwrite with an empty worker table
+    workers = len(client.nthreads())
     wall0 = time.monotonic()
     futures = [client.submit(replay_task, str(root), r, cfg, version, attempts_dir,
                              key=f"railgw-replay-{version}-{r.run_id}", retries=retries,
