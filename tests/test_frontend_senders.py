@@ -112,3 +112,34 @@ def test_front_end_excludes_the_doubled_stream_and_takes_it_back(idx_offset):
     assert np.all(np.isfinite(acc_b[after]))        # back, single again
     # and it is the genuine node's signal, not the x 1.5 one
     assert 0.8 < np.std(acc_b[after]) / np.std(acc_b[before]) < 1.25
+
+
+@pytest.mark.parametrize(("heard", "lost"), [(10, 20), (3, 17), (1, 17), (5, 40), (20, 100),
+                                             (60, 200)])
+def test_one_sender_losing_frames_in_bursts_is_single(heard, lost):
+    # a node heard for `heard` frames, then `lost` frames dropped (a full kernel buffer or
+    # queue under load: more than max_step, so each resumption is an index jump), again
+    # and again: one sender, never two (2026-11-26: the systemd check's guest flagged BDN,
+    # BGN and WSN when its service fell behind)
+    frames = [f for k, f in enumerate(_seq(20_000, 60_000)) if k % (heard + lost) < heard]
+    check = SenderCheck()
+    for c, i in frames:
+        check.feed(c, i)
+    assert lost > P.max_step and check.state.jumps["idx_jump"] > 50
+    assert not check.state.two_senders and check.state.events == 0
+
+
+@pytest.mark.parametrize("burst", [1, 2, 4, 8])
+@pytest.mark.parametrize("offset", [3, 30, 20_000, -20_000])
+def test_two_senders_taking_turns_in_bursts_are_two(burst, offset):
+    # the masquerader's sequence ahead of or behind the node's, each sending `burst`
+    # frames in turn (on a real bus two 1 kHz senders interleave frame by frame)
+    a, b = _seq(4000, 1000), _seq(4000, (1000 + offset) % 65536, counter0=5)
+    check = SenderCheck()
+    raised_at = None
+    stream = [f for j in range(0, 4000, burst) for f in a[j:j + burst] + b[j:j + burst]]
+    for n, (c, i) in enumerate(stream):
+        check.feed(c, i)
+        if check.state.two_senders and raised_at is None:
+            raised_at = n
+    assert raised_at is not None and raised_at < 2 * P.block_frames

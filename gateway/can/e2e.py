@@ -214,7 +214,13 @@ class SenderParams:
     *switches*; a block of ``block_frames`` frames with ``raise_switches`` or more raises
     the flag, ``clear_blocks`` blocks in a row with fewer clear it (hysteresis). A
     second sequence continued ``promote_after`` times with no primary frame in between
-    replaces the primary (the node restarted: one sender, no switches).
+    replaces the primary (the node restarted: one sender). If that sequence resumed
+    *ahead* of the primary by more than ``max_step`` (lost frames: a burst the kernel or
+    the queue dropped, or a node restart that kept counting), the hand-over is no
+    switch; a switch into it counts only once the primary is heard again. One node whose
+    frames are lost in bursts is therefore never taken for two senders, while two
+    senders interleaving frame by frame count as before, and two senders taking turns in
+    bursts still count the switches back into the sequence that is behind.
     """
 
     max_step: int = 16
@@ -234,6 +240,10 @@ class SenderState:
     last_track: int = 0
     """1 primary, 2 second, 0 none yet."""
     second_run: int = 0
+    second_ahead: bool = False
+    """The second sequence started ahead of the primary by more than ``max_step``."""
+    pending_switch: int = 0
+    """A switch into such a sequence, counted only when the primary is heard again."""
     block_n: int = 0
     block_switches: int = 0
     clean_blocks: int = 0
@@ -274,6 +284,7 @@ class SenderCheck:
         """Classify one frame's (counter 0..14, sample index 0..65535) and advance."""
         p, st = self.params, self.state
         track = 1
+        handover = False
         if st.primary is None:
             st.primary = (counter, idx)
         elif (c := _continues(st.primary, counter, idx, p.max_step)) != 0:
@@ -289,14 +300,21 @@ class SenderCheck:
                 st.second_run += 1
             if st.second_run >= p.promote_after and st.last_track != 1:
                 st.primary, st.second, st.second_run, track = st.second, None, 0, 1
+                handover = True
         else:
             di = (idx - st.primary[1]) % SAMPLE_INDEX_MODULUS
             why = ("idx_repeat" if di == 0 else
                    "idx_back" if di >= SAMPLE_INDEX_MODULUS // 2 else "idx_jump")
             st.jumps[why] += 1
             st.second, st.second_run, track = (counter, idx), 0, 0
-        if track and st.last_track and track != st.last_track:
-            st.block_switches += 1
+            st.second_ahead = p.max_step < di < SAMPLE_INDEX_MODULUS // 2
+        if handover and st.second_ahead:
+            st.pending_switch = 0                  # lost frames, then one sender again
+        elif track == 2 and st.last_track == 1 and st.second_ahead:
+            st.pending_switch = 1                  # a gap or a second sender: not known yet
+        elif track and st.last_track and track != st.last_track:
+            st.block_switches += 1 + st.pending_switch
+            st.pending_switch = 0
         if track:
             st.last_track = track
         st.block_n += 1

@@ -40,6 +40,7 @@ from gateway.errors import ConfigError
 from gateway.model.vehicle import PARAM_NAMES
 from gateway.records import Alert, Estimate, Sink
 from gateway.runtime.pipeline import Pipeline
+from gateway.service.losses import LossCounts, LossLog
 from gateway.service.sdnotify import Notifier
 from gateway.service.view import ServiceViewImpl
 from gateway.sinks.outputs import CanSink, Health, HealthFlags, LogSink
@@ -129,6 +130,7 @@ class Service:
         self._load_mark = (time.monotonic(), 0)
         self._load_pct = 0.0
         self._resyncs_reported = 0
+        self._losses = LossLog()
 
     # -------------------------------------------------------------- callbacks
     def _on_checkpoint(self, seq: int, blob: bytes) -> None:
@@ -242,6 +244,14 @@ class Service:
                       src.frames_rx, ps.frames_rejected if ps else 0, dropped,
                       ps.rtf if ps else math.nan, self.health_flags())
 
+    def _log_losses(self, now_s: float) -> None:
+        src, p = self.source.stats, self.pipeline
+        line = self._losses.line(LossCounts(
+            src.dropped_kernel, src.dropped_queue_full,
+            p.stats().samples_dropped if p is not None else 0), now_s)
+        if line is not None:
+            log.warning("%s", line)
+
     def health_flags(self) -> HealthFlags:
         """The faults the service runs on with, for GW_HealthFlags, STATUS= and the console."""
         p = self.pipeline
@@ -342,6 +352,7 @@ class Service:
                     health = self.health()
                     self.can_sink.emit_health(health)
                     self._resyncs_reported = health.flags.resyncs
+                    self._log_losses(now)
                     if self._progressing(last_done):
                         self.notifier.watchdog()
                 if now >= next_publish:
