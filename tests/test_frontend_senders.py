@@ -143,3 +143,63 @@ def test_two_senders_taking_turns_in_bursts_are_two(burst, offset):
         if check.state.two_senders and raised_at is None:
             raised_at = n
     assert raised_at is not None and raised_at < 2 * P.block_frames
+
+
+def test_front_end_keeps_every_node_when_frames_are_lost_in_bursts():
+    # 2026-11-26: at the traffic's start in the systemd check's guest the kernel dropped
+    # 79-1,006 frames from the full socket buffer, and BDN, BGN and WSN were flagged as
+    # two senders and excluded. Here every node loses 20 frames (20 ms) out of every 32,
+    # all at the same moments, as a stalled reader loses them
+    sim = Simulation(get_scenario("nominal"), SimConfig(duration_s=4.0, seed=3))
+    fe = FrontEnd(Config(), default_codec())
+    out, kept, t0 = [], 0, None
+    for n, m in enumerate(sim.messages()):
+        t0 = m.timestamp if t0 is None else t0
+        if (m.timestamp - t0) % 0.032 < 0.020:
+            continue                                  # lost in the burst
+        kept += 1
+        out.extend(fe.on_frame(m))
+        if n % 1000 == 0:
+            out.extend(fe.on_time(m.timestamp))
+    out.extend(fe.finish())
+    st = fe.stats()
+    assert st.two_senders == () and not any(st.two_sender_events.values())
+    assert st.rejected.get("two_senders", 0) == 0
+    lateral = ("BGN_Lat", "BDN_Lat", "WSN_Lat")
+    assert sum(st.sample_idx_jumps[name]["idx_jump"] for name in lateral) > 100
+    assert all(st.gaps[name].get("excluded", 0) == 0 for name in st.gaps)
+    values = np.array([s.values for s in out])     # 12 of every 32 ms heard: 37.5 %
+    assert kept > 4000 and np.isfinite(values).all(axis=1).mean() > 0.3
+
+
+def test_every_required_message_excluded_leaves_the_grid_on_the_deadline():
+    # two senders on every lateral id at once (a rogue device copying all the nodes):
+    # with nothing left to wait for, the grid used to finalise points without end on
+    # the next frame (the process ran out of memory); it must follow the deadline
+    sim = Simulation(get_scenario("nominal"), SimConfig(duration_s=3.0, seed=3))
+    fe = FrontEnd(Config(), default_codec())
+    messages = list(sim.messages())
+    finalize, points = fe.resampler._finalize, [0]
+
+    def bounded(j: int) -> None:                     # a regression fails, not OOMs, CI
+        points[0] += 1
+        if points[0] > 100_000:
+            raise AssertionError("the grid ran away: 100,000 points for 3 s of data")
+        finalize(j)
+
+    fe.resampler._finalize = bounded
+    out = []
+    for n, m in enumerate(messages):
+        if n == len(messages) // 3:
+            for name in fe.resampler.config.required_messages:
+                fe.resampler.set_excluded(name, True)
+        out.extend(fe.on_frame(m))
+        if n % 500 == 0:
+            out.extend(fe.on_time(m.timestamp))
+    t_last = messages[-1].timestamp
+    t = np.array([s.t_s for s in out])
+    assert len(t) > 0 and np.all(np.diff(t) > 0)
+    assert t[-1] <= t_last + 0.01                    # not run ahead of the data
+    values = np.array([s.values for s in out])
+    late = t > messages[len(messages) // 3].timestamp + 0.5
+    assert late.sum() > 1000 and np.all(np.isnan(values[late]))   # excluded: MISSING

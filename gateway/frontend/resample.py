@@ -663,6 +663,8 @@ class Resampler:
         up to the next sample: its later samples will never come)."""
         st = self._st
         fs = self.config.fs_hz
+        if all(node.excluded for node in self._required):
+            return              # nothing to wait for: the deadline moves the grid on
         while st.next_j is not None:
             t = st.next_j / fs
             for node in self._required:
