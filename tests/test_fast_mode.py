@@ -152,6 +152,42 @@ def test_gains_are_the_dare_solution_of_scipy(n_sensors: int) -> None:
         assert np.abs(g_ours - g_ref).max() < 1e-6 * np.abs(g_ref).max()
 
 
+@pytest.mark.parametrize("n_sensors", [3, 5])
+def test_a_warm_start_from_the_ancestors_gives_the_cold_solution(n_sensors: int) -> None:
+    """A move's DARE solves start from the ancestor's P- (Newton steps, steady.py): the
+    particles jittered by 0.2-5 % from their ancestors get the gains, innovation variances
+    and log det of the cold solve (doubling and Newton) to 1e-9, within a few Newton
+    steps. A start that is no solution at all (P- = 0, which no Newton step of the four
+    repairs) falls back to the cold solve for those particles, which then equals it bit
+    for bit."""
+    rng = np.random.default_rng(12)
+    anc = Bank(_theta_box(rng, 32), n_sensors)
+    pick = rng.integers(0, anc.m, 64)
+    jitter = np.exp(rng.normal(0.0, rng.choice([0.002, 0.01, 0.05], 64)[:, None], (64, 3)))
+    moved = Bank(anc.theta[pick] * jitter, n_sensors)       # its gains: the cold solve
+    warm = st.SteadyGains.empty(n_chunks(moved.m), len(moved.sensors))
+    st.steady_gains(moved.phi, moved.qd, to_lanes(moved.v0), moved.H, moved.r, warm,
+                    start=anc.gains.take(pick))
+    it = warm.iters[:moved.m]
+    assert (it < 0).all() and (-it <= st.NEWTON_MAX).all(), it     # all converged warm
+    cold, m = moved.gains, moved.m
+    for a, b in ((warm.g, cold.g), (warm.s, cold.s), (warm.p_pred, cold.p_pred)):
+        a, b = from_lanes(a, m, (-1,)), from_lanes(b, m, (-1,))
+        assert (np.abs(a - b).max(1) / np.abs(b).max(1)).max() < 1e-9
+    assert np.abs(warm.c0[:m] - cold.c0[:m]).max() < 1e-9
+    bad = anc.gains.take(pick)
+    bad[: n_chunks(moved.m) // 2] = 0.0                      # half the particles: P- = 0
+    far = st.SteadyGains.empty(n_chunks(moved.m), len(moved.sensors))
+    st.steady_gains(moved.phi, moved.qd, to_lanes(moved.v0), moved.H, moved.r, far,
+                    start=bad)
+    fell = far.iters[:m] > 0
+    assert fell.sum() >= m // 2 - LANES
+    for a, b in ((far.g, cold.g), (far.s, cold.s), (far.p_pred, cold.p_pred)):
+        a, b = from_lanes(a, m, (-1,)), from_lanes(b, m, (-1,))
+        assert np.array_equal(a[fell], b[fell])
+    assert np.array_equal(far.c0[:m][fell], cold.c0[:m][fell])
+
+
 def test_every_particle_converges_over_the_prior_box() -> None:
     rng = np.random.default_rng(5)
     bank = Bank(_theta_box(rng, 256, 0.3, 3.5), 3)

@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (826): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines (843): the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor and fault bank
 are already separate modules.
 
@@ -92,6 +92,8 @@ _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 LOCATED_FOR_S = 2.0
 """Data time (s) over which estimates carry the fault bank's latest detection
 (:class:`gateway.records.Located`); the alert policy acts on each one once."""
+_GAINS = ("p_pred", "g", "s", "c0", "iters")
+"""The fields of :class:`SteadyGains` a fast-mode checkpoint keeps."""
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
             "_subset_run", "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
@@ -209,6 +211,7 @@ class RBPF:
             self._ramp_from = self._data_since_start
             self._p0_set = True
             self._at_prior, self._prior_v = True, self._v_ref
+        # a new speed band solves cold: its filter coordinates are not the last band's
         self._recompute()
 
     def _own_prior(self) -> np.ndarray:
@@ -224,10 +227,12 @@ class RBPF:
         horizon.compute(self.theta[:, :3], self._q(), np.empty_like(P), P)
         return P
 
-    def _recompute(self) -> None:
+    def _recompute(self, start: np.ndarray | None = None) -> None:
+        """Phi and Qd at every particle's theta; in fast mode's steady phase its gains too,
+        by Newton steps from ``start`` (lane layout P-, a nearby solution) where given."""
         self._disc.compute(self.theta[:, :3], self._q(), self._phi, self._qd)
         if self._steady:
-            self._recompute_gains()
+            self._recompute_gains(start)
         elif self._fast and self._warm_left <= 0:
             self._enter_steady()
 
@@ -294,10 +299,11 @@ class RBPF:
             self._v0_key = (self.z, self._null)
         return self._v0
 
-    def _recompute_gains(self) -> None:
-        """Fast mode: every particle's steady-state filter at its theta and v_ref."""
+    def _recompute_gains(self, start: np.ndarray | None = None) -> None:
+        """Fast mode: every particle's steady-state filter at its theta and v_ref, solved
+        cold or from ``start`` (:func:`gateway.estimator.steady.steady_gains`)."""
         v0 = to_lanes(self._particle_null())
-        steady_gains(self._phi, self._qd, v0, self._H, self._r, self._gains)
+        steady_gains(self._phi, self._qd, v0, self._H, self._r, self._gains, start=start)
         self._P = self._gains.p_pred
 
     # ------------------------------------------------------------------ step
@@ -653,7 +659,10 @@ class RBPF:
             self._at_prior, self._prior_v = True, self._v_ref
         elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
-        self._recompute()
+        # in the steady phase a moved particle's DARE starts from its ancestor's solution
+        # (a jitter away); a fault's re-draw spans a range, so its particles start cold
+        warm = self._steady and fault is None and not alarm
+        self._recompute(self._gains.take(anc) if warm else None)
         if self._bank is not None:
             if alarm:
                 self._bank.stop()
@@ -693,6 +702,9 @@ class RBPF:
         meta = {"config": asdict(self.config), "rng": ckpt.generator_state(self.rng),
                 "scalars": scalars}
         arrays = {k: getattr(self, k) for k in _ARRAYS if hasattr(self, k)}
+        if self._steady:
+            # the gains depend on the history (each move's DARE starts from its ancestor's)
+            arrays.update({f"gains_{k}": getattr(self._gains, k) for k in _GAINS})
         if self._bank is not None:
             arrays.update(self._bank.arrays())
         return ckpt.pack(meta, arrays)
@@ -716,10 +728,13 @@ class RBPF:
         if sc.get("_at_prior") is None:     # a checkpoint from before the field existed
             self._at_prior = False
         bank = {k: arrays.pop(k) for k in list(arrays) if k.startswith("bank_")}
+        gains = {k[6:]: arrays.pop(k) for k in list(arrays) if k.startswith("gains_")}
         for k, v in arrays.items():
             setattr(self, k, v)
-        if self._steady:
-            self._recompute_gains()   # a function of (theta, v_ref): bit-identical again
+        if self._steady and set(gains) == set(_GAINS):
+            self._gains = SteadyGains(**gains)
+        elif self._steady:
+            self._recompute_gains()   # a checkpoint from before the gains were kept
         if self._bank is not None:
             self._bank.load(bank)
         return self

@@ -1,7 +1,7 @@
 """Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
 
-Over 400 lines (597): the generators of two lane kernels (the doubling with its Newton
-step, the block of steady steps) and their typed wrappers, one concern.
+Over 400 lines (705): the generators of two lane kernels (the doubling with its Newton
+step and warm start, the block of steady steps) and their typed wrappers, one concern.
 
 A particle's covariance and gains depend only on its theta and the speed, never on the
 data, and theta is fixed between resample-moves. Fast mode therefore gives each particle
@@ -43,6 +43,16 @@ Gauss-Jordan elimination with partial pivoting, per particle. A particle whose i
 does not converge within ``MAX_ITER`` or turns non-finite is *dead* for the band: log-
 likelihood -inf and state 0, as in the exact kernel.
 
+Warm start (a move): a moved particle's theta is a jitter away from its ancestor's, so
+its DARE starts from the ancestor's ``P-`` and takes Newton steps (each a Stein solve,
+as in the polish) until a step changes ``P- H'`` by less than ``DARE_TOL`` of its
+largest element: 2-4 steps instead of the doubling's 17-19 iterations plus one step,
+and the same solution (to 1e-9, tests/test_fast_mode.py). A particle for which the
+Newton steps do not converge within ``NEWTON_MAX`` (or turn non-finite: its ancestor's
+gain no longer stabilises it) is solved cold. A new speed band always solves cold (its
+start, the last band's ``P-``, gave an unstable closed loop: measured). The gains then
+depend on the history, so a fast-mode checkpoint keeps them.
+
 Arrays use the lane layout of :mod:`gateway.estimator.lanecode`: ``Phi, Qd, P-`` are
 ``(n_chunks, 256 * LANES)``, null vectors ``(n_chunks, 16 * LANES)``, gains ``g``
 ``(n_chunks, ny * 16 * LANES)``, ``S`` ``(n_chunks, ny * LANES)``, ``c0`` and per-particle
@@ -55,7 +65,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gateway.estimator.kalman import _LOG_2PI, from_lanes, to_lanes
+from gateway.estimator.kalman import _LOG_2PI, from_lanes, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES, block_product, compile_kernel, stmt
 from gateway.model.coordinates import NZ
 
@@ -67,6 +77,9 @@ MAX_ITER = 40
 SMITH_ITER = 20
 """Squarings in the Newton step's Stein solve: the closed loop to the power 2**22 (the
 slowest decaying mode, 0.99996 per sample with 5 sensors, is then below 1e-19)."""
+NEWTON_MAX = 4
+"""Newton steps of a warm start before the particle is solved cold (from a move's
+jitter, 2-3 steps reach ``DARE_TOL``; measured 2026-11-26)."""
 DARE_TOL = 1e-6
 """A particle's doubling has converged when an iteration changes no element of P- H' by
 more than this times its largest (quadratic convergence: the iterate is then far closer)."""
@@ -91,8 +104,9 @@ def _deflate(indent: int, arr: str, n: int) -> list[str]:
     return L
 
 
-def _polish(n: int) -> list[str]:
-    """Lines of one Newton step on the DARE at ``Hm`` (the doubling's P-), in place.
+def _newton(n: int) -> list[str]:
+    """Lines of one Newton step on the DARE at ``Hm`` (the doubling's P-): its correction
+    into ``Xs`` (the caller adds it).
 
     The Riccati map R linearised at P is ``R(P + D) = R(P) + M D M'`` with ``M`` the
     closed loop ``Phi (I - K H)``; the step solves the Stein equation
@@ -162,7 +176,59 @@ def _polish(n: int) -> list[str]:
                        b_row=f"(k * {n} + {{r}}) * {C}", n=n, bi=2, bj=2, init=None,
                        out=[("Mn", m)])
     L += ["            Xs, Xn = Xn, Xs", "            Mk, Mn = Mn, Mk"]
-    L += [f"        for i in range({n * n * C}):", "            Hm[i] += Xs[i]"]
+    return L
+
+
+def _polish(n: int) -> list[str]:
+    """Lines of one Newton step on the DARE at ``Hm``, in place (:func:`_newton`)."""
+    return _newton(n) + [f"        for i in range({n * n * LANES}):", "            Hm[i] += Xs[i]"]
+
+
+def _warm_start(n: int) -> list[str]:
+    """Lines of the warm start: Newton steps on the DARE from ``P0`` (a nearby solution,
+    e.g. the resampled ancestor's P- before a move's jitter, or the particle's own at the
+    previous speed band), each lane until its correction to ``P- H'`` is below ``tol``
+    times its largest element; quadratic convergence then leaves it within about
+    ``tol**2`` (measured: 2-3 steps from a 1 % jitter, docs/estimator.md "Fast mode").
+    A converged lane keeps its ``P-`` while the others go on, so that a particle's result
+    does not depend on its chunk. A lane still moving after ``newton_max`` steps, or not
+    finite, is marked not converged (``iters`` 0) for the caller to solve cold; one that
+    converged gets ``iters`` = -(its Newton steps)."""
+    C = LANES
+    step = ["        " + line for line in _newton(n)]
+    L = ["        if warm:", "            Pw = P0[ch]",
+         f"            for i in range({n * n * C}):", "                Hm[i] = Pw[i]"]
+    L += ["    " + line for line in _deflate(2, "Hm", n)]
+    L += ["            for itn in range(newton_max):"]
+    L += step
+    L += stmt(4, "dm_{l} = 0.0")
+    L += stmt(4, "hm_{l} = 0.0")
+    L += ["                for s in range(ny):", f"                    for i in range({n}):"]
+    L += stmt(6, "u_{l} = 0.0")
+    L += stmt(6, "w_{l} = 0.0")
+    L += [f"                        for j in range({n}):",
+          "                            hk = H[s, j]"]
+    L += stmt(7, f"u_{{l}} += Xs[(i * {n} + j) * {C} + {{l}}] * hk")
+    L += stmt(7, f"w_{{l}} += Hm[(i * {n} + j) * {C} + {{l}}] * hk")
+    L += stmt(6, "dm_{l} = max(dm_{l}, abs(u_{l}))")
+    L += stmt(6, "hm_{l} = max(hm_{l}, abs(w_{l} + u_{l}))")
+    L += [f"                for l in range({C}):",
+          f"                    if iters[ch * {C} + l] == 0:",
+          f"                        for i in range({n * n}):",
+          f"                            Hm[i * {C} + l] += Xs[i * {C} + l]",
+          "                wdone = True"]
+    for lane in range(C):
+        p = f"ch * {C} + {lane}"
+        L += [f"                if iters[{p}] == 0:",
+              f"                    if dm_{lane} <= tol * hm_{lane} and hm_{lane} < np.inf:",
+              f"                        iters[{p}] = -(itn + 1)",
+              "                    else:",
+              "                        wdone = False"]
+    L += ["                if wdone:", "                    break",
+          f"            for l in range({C}):",
+          f"                if iters[ch * {C} + l] == 0:",
+          "                    ok[l] = False",
+          "            done = True"]
     return L
 
 
@@ -170,7 +236,7 @@ def _sda_source(n: int) -> list[str]:
     C = LANES
     m = _mat(n)
     z = 3 * n                                   # columns of the augmented [W | A | G]
-    L = ["def sda(F, Q, G0, V, H, r, tol, maxit, P, Gs, Ss, c0, iters):",
+    L = ["def sda(F, Q, G0, V, H, r, tol, maxit, P0, warm, newton_max, P, Gs, Ss, c0, iters):",
          "    nch = F.shape[0]",
          "    ny = H.shape[0]",
          "    for ch in prange(nch):",
@@ -203,8 +269,9 @@ def _sda_source(n: int) -> list[str]:
          f"        for l in range({C}):",
          f"            iters[ch * {C} + l] = 0",
          "        it = 0",
-         "        done = False",
-         "        while not done and it < maxit:",
+         "        done = False"]
+    L += _warm_start(n)
+    L += ["        while not done and it < maxit:",
          "            it += 1"]
     loops = [f"            for ib in range(0, {n}, 2):",
              f"                for jb in range(0, {n}, 2):"]
@@ -304,7 +371,7 @@ def _sda_source(n: int) -> list[str]:
     L += ["            A, An = An, A", "            Gm, Gn = Gn, Gm", "            Hm, Hn = Hn, Hm"]
     L += ["        if not done:", f"            for l in range({C}):",
           "                ok[l] = False"]
-    L += _polish(n)
+    L += ["        if not warm:"] + ["    " + line for line in _polish(n)]
     L += ["        Pc = P[ch]",
           f"        for i in range({n * n * C}):",
           "            Pc[i] = Hm[i]"]
@@ -424,7 +491,7 @@ def _block_source(n: int, rows: int = BLOCK_ROWS) -> list[str]:
 
 
 _SDA_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8, "
-            "i8, f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], i8[::1])")
+            "i8, f8[:, ::1], b1, i8, f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], i8[::1])")
 _BLOCK_SIG = ("void(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], b1[::1], f8[:, ::1], "
               "f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1])")
 _sda_kernel = compile_kernel("sda", _sda_source(NZ), _SDA_SIG, module=__name__,
@@ -441,7 +508,8 @@ class SteadyGains:
     (n_chunks, ny * 16 * LANES) the sequential gains P h_s'; ``s`` (n_chunks, ny * LANES)
     the sequential innovation variances; ``c0`` (n_chunks * LANES,) log det(2 pi S), +inf
     for a dead particle; ``iters`` (n_chunks * LANES,) the doubling iteration at which
-    each particle converged (0: it did not).
+    each particle converged, or minus the Newton steps a warm start took (0: it did not
+    converge).
     """
 
     p_pred: np.ndarray
@@ -449,6 +517,11 @@ class SteadyGains:
     s: np.ndarray
     c0: np.ndarray
     iters: np.ndarray
+
+    def take(self, particles: np.ndarray) -> np.ndarray:
+        """The P- of ``particles`` (flat indices, in order), lane layout: a warm start
+        for :func:`steady_gains` (a move's ancestors)."""
+        return _take(self.p_pred, np.asarray(particles, dtype=np.int64))
 
     @classmethod
     def empty(cls, n_chunks: int, ny: int) -> SteadyGains:
@@ -503,15 +576,50 @@ def without_null(x: np.ndarray, v0: np.ndarray) -> np.ndarray:
 
 
 def steady_gains(phi: np.ndarray, qd: np.ndarray, v0: np.ndarray, H: np.ndarray,
-                 r: np.ndarray, out: SteadyGains, tol: float = DARE_TOL) -> None:
+                 r: np.ndarray, out: SteadyGains, tol: float = DARE_TOL,
+                 start: np.ndarray | None = None) -> None:
     """Solve every particle's filter DARE and fill ``out`` in place.
 
     ``phi``, ``qd`` lane layout (n_chunks, 256 * LANES); ``v0`` lane layout (n_chunks,
     16 * LANES) unit null vectors; ``H`` (ny, 16); ``r`` (ny,) measurement variances.
+    ``start``: None solves cold (the doubling, then one Newton step); else a nearby
+    solution P- per particle, lane layout (n_chunks, 256 * LANES), from which Newton
+    steps start (up to ``NEWTON_MAX``); a particle they do not converge for is then
+    solved cold, so the result is a particle's own and never a worse one.
     """
     g0 = np.ascontiguousarray(H.T @ (H / r[:, None]))
-    _sda_kernel(phi, qd, g0, v0, np.ascontiguousarray(H), np.ascontiguousarray(r),
-                float(tol), MAX_ITER, out.p_pred, out.g, out.s, out.c0, out.iters)
+    Hc, rc = np.ascontiguousarray(H), np.ascontiguousarray(r)
+    warm = start is not None
+    p0 = np.ascontiguousarray(start) if warm else out.p_pred
+    _sda_kernel(phi, qd, g0, v0, Hc, rc, float(tol), MAX_ITER, p0, warm, NEWTON_MAX,
+                out.p_pred, out.g, out.s, out.c0, out.iters)
+    if not warm:
+        return
+    cold = np.flatnonzero(out.iters == 0)
+    if len(cold):
+        sub = SteadyGains.empty(n_chunks(len(cold)), len(r))
+        _sda_kernel(_take(phi, cold), _take(qd, cold), g0, _take(v0, cold), Hc, rc,
+                    float(tol), MAX_ITER, sub.p_pred, False, 0, sub.p_pred, sub.g, sub.s,
+                    sub.c0, sub.iters)
+        for name in ("p_pred", "g", "s"):
+            _put(getattr(out, name), cold, getattr(sub, name))
+        out.c0[cold] = sub.c0[:len(cold)]
+        out.iters[cold] = sub.iters[:len(cold)]
+
+
+def _take(a: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+    """The lanes ``lanes`` (flat particle indices) of the lane-layout ``a`` (n_chunks,
+    k * LANES), as a lane-layout batch of their own."""
+    per = a.reshape(a.shape[0], -1, LANES)
+    return to_lanes(per[lanes // LANES, :, lanes % LANES])
+
+
+def _put(a: np.ndarray, lanes: np.ndarray, sub: np.ndarray) -> None:
+    """Write the first ``len(lanes)`` particles of the lane-layout ``sub`` into lanes
+    ``lanes`` of ``a``, in place."""
+    per = a.reshape(a.shape[0], -1, LANES)
+    inner = per.shape[1]
+    per[lanes // LANES, :, lanes % LANES] = from_lanes(sub, len(lanes), (inner,))
 
 
 def kf_steady(x: np.ndarray, phi: np.ndarray, H: np.ndarray, y: np.ndarray,
