@@ -236,7 +236,8 @@ def test_nearest_interpolation_keeps_the_measured_noise_and_a_bad_choice_is_refu
 
 def test_data_too_gappy_to_measure_keep_the_model_and_say_why() -> None:
     """A sensor missing every 200th sample leaves no complete 256-sample segment: after
-    four windows the test gives up, keeps the model's noise, and its report is strict
+    four windows the test gives up, keeps the model's noise, says how far the data fell
+    short (no complete segment; one sample in 200 incomplete), and its report is strict
     JSON."""
     Y = _data(3, 20.5, 1.96, seed=46)
     Y[1::200, 2] = np.nan
@@ -247,5 +248,6 @@ def test_data_too_gappy_to_measure_keep_the_model_and_say_why() -> None:
     checked.run(smp[19999:], output_every=1000)
     res = checked.noise_check()
     assert res is not None and not any(res.replaced) and "too few" in res.note
+    assert ": 0 of 16 needed, 0.5 % of the last 20000 samples" in res.note, res.note
     assert res.used_var == res.model_var and res.t_s == pytest.approx(20.0)
     json.dumps(res.as_dict(), allow_nan=False)

@@ -73,6 +73,22 @@ def band_bins(fs_hz: float) -> np.ndarray:
     return np.flatnonzero((f >= lo) & (f <= hi))
 
 
+def complete_samples(y: np.ndarray, usable: np.ndarray | None = None) -> np.ndarray:
+    """(T,) bool: the samples of ``y`` (T, ny) with every value finite and, where
+    ``usable`` (T,) is given, marked usable."""
+    ok = np.all(np.isfinite(np.asarray(y, dtype=float)), axis=1)
+    if usable is not None:
+        ok &= np.asarray(usable, dtype=bool)
+    return ok
+
+
+def segment_starts(complete: np.ndarray, fs_hz: float) -> list[int]:
+    """Start indices of the complete, half-overlapping :func:`segment_len` segments over
+    the samples ``complete`` (T,) bool marks."""
+    n = segment_len(fs_hz)
+    return [s for s in range(0, len(complete) - n + 1, n // 2) if complete[s:s + n].all()]
+
+
 def band_variance(y: np.ndarray, fs_hz: float, usable: np.ndarray | None = None
                   ) -> BandVariance | None:
     """The band's power of ``y`` (T, ny) on a grid of ``fs_hz`` as white-noise variance
@@ -81,12 +97,8 @@ def band_variance(y: np.ndarray, fs_hz: float, usable: np.ndarray | None = None
     y = np.asarray(y, dtype=float)
     if y.ndim != 2:
         raise EstimatorError(f"expected samples of shape (T, ny), got {y.shape}")
-    ok = np.all(np.isfinite(y), axis=1)
-    if usable is not None:
-        ok &= np.asarray(usable, dtype=bool)
     n = segment_len(fs_hz)
-    hop = n // 2
-    starts = [s for s in range(0, len(y) - n + 1, hop) if ok[s:s + n].all()]
+    starts = segment_starts(complete_samples(y, usable), fs_hz)
     if len(starts) < MIN_SEGMENTS:
         return None
     w = np.hanning(n + 2)[1:-1]                  # (n,): zero-free Hann

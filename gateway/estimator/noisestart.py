@@ -42,7 +42,13 @@ import numpy as np
 
 from gateway.errors import EstimatorError
 from gateway.estimator import checkpoint as ckpt
-from gateway.estimator.noisefloor import BandVariance, band_variance, model_band_variance
+from gateway.estimator.noisefloor import (
+    BandVariance,
+    band_variance,
+    complete_samples,
+    model_band_variance,
+    segment_starts,
+)
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.records import Estimate, NoiseCheck, Sample
 
@@ -58,7 +64,7 @@ MODEL_REL = 0.25
 PLAUSIBLE = 100.0
 """A measured/model variance ratio outside [1/PLAUSIBLE, PLAUSIBLE] changes nothing."""
 MIN_TEST_SEGMENTS = 16
-"""Complete segments (of 256 samples, half overlapping) the test needs: about 2 s of
+"""Complete segments (of 0.256 s, half overlapping) the test needs: about 2 s of
 usable data; with fewer it waits for the next window."""
 INTERIM_S = 2.0
 """A first look after this much data: where no sensor's band variance is off by more
@@ -95,10 +101,11 @@ def _usable(sample: Sample) -> bool:
 def _with_noise(blob: bytes, noise_var: tuple[float, ...]) -> bytes:
     """An RBPF checkpoint with the configuration's sensor-noise variances replaced (for a
     filter that has used no data yet, the state a filter with them would have: R enters
-    only through the updates and the gains, which a restore recomputes)."""
+    only through the updates and the gains, which a restore recomputes: kept steady gains
+    are dropped, since they were solved with the old variances)."""
     meta, arrays = ckpt.unpack(blob)
     meta["config"]["noise_var"] = list(noise_var)
-    return ckpt.pack(meta, arrays)
+    return ckpt.pack(meta, {k: v for k, v in arrays.items() if not k.startswith("gains_")})
 
 
 class NoiseCheckedStart:
@@ -144,6 +151,18 @@ class NoiseCheckedStart:
         return model_band_variance(cfg.params, theta, float(np.median(moving)),
                                    self.inner.sensors, cfg.ar_paper, cfg.fs_hz)
 
+    def _too_few(self) -> str:
+        """Why the test could not be made, with the figures a fitter can act on: the
+        complete segments found, and the share of kept samples without every sensor's
+        value (a late, suspect or missing node) or not updates (gated)."""
+        kept = self._kept
+        ok = complete_samples(np.stack([s.values for s in kept]),
+                              np.array([s.update for s in kept]))
+        found = len(segment_starts(ok, self.inner.config.fs_hz))
+        return (f"too few complete segments of data: {found} of {MIN_TEST_SEGMENTS} "
+                f"needed, {100.0 * (1.0 - ok.mean()):.1f} % of the last {len(kept)} "
+                f"samples lacked a sensor's value or were gated")
+
     def _looks_right(self, est: Estimate) -> bool:
         """The first look: every sensor's band variance within ``TRUST_FACTOR`` of the
         model's (no test, nothing replaced)."""
@@ -167,7 +186,7 @@ class NoiseCheckedStart:
             nan = (math.nan,) * len(model)
             return self._finish(NoiseCheck(sensors, model, nan, nan, nan, model,
                                            (False,) * len(model), kept[-1].t_s,
-                                           "too few complete segments of data"), est)
+                                           self._too_few()), est)
         signal = self._signal(est)
         used, replaced, se = decide(np.array(model), band.variance, signal, band.se_rel)
         return self._finish(NoiseCheck(
