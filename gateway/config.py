@@ -30,6 +30,7 @@ class BusConfig:
     reopen_min_s: float = 0.2
     reopen_max_s: float = 10.0
     rx_queue_frames: int = 100_000
+    rcvbuf_bytes: int = 4 * 1024 * 1024
 
 
 @dataclass(frozen=True)
@@ -217,6 +218,8 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     ("bus", "reopen_max_s"): Range(0.01, 3600.0),
     # a full 1 Mbit/s bus is ~8 000 frames/s; 1e6 queued frames is ~2 min and ~0.5 GB
     ("bus", "rx_queue_frames"): Range(1000, 1_000_000),
+    # the kernel socket's receive buffer (socketcan); 0 keeps the kernel's default
+    ("bus", "rcvbuf_bytes"): Range(4096, 2**30, off=0),
     # sensors sample at 1 kHz; the model's modes lie below 40 Hz
     ("resampler", "fs_hz"): Range(10.0, 10_000.0),
     ("resampler", "deadline_s"): Range(0.001, 10.0),

@@ -31,7 +31,9 @@ from dataclasses import dataclass
 from types import FrameType
 from typing import Any
 
-from gateway.can.bus import BusSpec, open_bus
+import can
+
+from gateway.can.bus import BusSpec, open_bus, set_receive_buffer
 from gateway.can.busload import frame_bits_worst_case
 from gateway.can.codec import Codec, default_codec
 from gateway.can.source import BusSource
@@ -111,7 +113,7 @@ class Service:
         self.rx_filters = self.codec.can_filters()
         """The DBC's sensor ids: kernel filters on SocketCAN (foreign frames never reach
         Python), python-can's software filter on ``virtual``."""
-        self.source = BusSource(lambda: open_bus(spec, can_filters=self.rx_filters),
+        self.source = BusSource(lambda: self._open_bus(spec),
                                 queue_frames=cfg.bus.rx_queue_frames,
                                 reopen_min_s=cfg.bus.reopen_min_s,
                                 reopen_max_s=cfg.bus.reopen_max_s)
@@ -418,6 +420,15 @@ class Service:
             rate = (frames - f0) / (now - t0)
             self._load_pct = 100.0 * rate * FRAME_BITS / self.codec.bitrate_bps
             self._load_mark = (now, frames)
+
+    def _open_bus(self, spec: BusSpec) -> can.BusABC:
+        """The sensor bus with the DBC's filters and the configured receive buffer (its
+        size, or why it is smaller, goes to the journal at every open)."""
+        bus = open_bus(spec, can_filters=self.rx_filters)
+        buf = set_receive_buffer(bus, self.cfg.bus.rcvbuf_bytes)
+        if buf is not None:
+            (log.warning if buf.clamped else log.info)("%s", buf.describe())
+        return bus
 
     def bus_load_pct(self) -> float:
         """Measured bus load over the last second or so (worst-case frame length), %."""

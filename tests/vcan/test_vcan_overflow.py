@@ -9,8 +9,9 @@ import can
 import pytest
 from vcanlib import RawCan, socket_drops, wait_for
 
-from gateway.can.bus import open_bus
-from gateway.can.source import BusSource
+from gateway.can.bus import open_bus, set_receive_buffer
+from gateway.can.source import BusSource, kernel_drops
+from gateway.config import Config
 
 pytestmark = pytest.mark.vcan
 
@@ -85,3 +86,34 @@ def test_bus_source_counts_kernel_drops(channel):
     finally:
         gate.set()
         src.close()
+
+
+BUS_SECOND = 3100
+"""Frames the sensor nodes send in one second (docs/can-bus.md, "Bus load")."""
+
+
+def test_the_configured_buffer_keeps_a_second_of_the_bus_through_a_stall(channel):
+    """Nobody reads for a second of sensor traffic: a socket with the kernel's default
+    receive buffer drops most of it; one with the service's default ``rcvbuf_bytes``
+    (set as the daemon sets it, gateway.can.bus.set_receive_buffer) keeps every frame,
+    in order. Prints the default buffer's capacity in frames (docs/can-bus.md)."""
+    bus = open_bus(f"socketcan:{channel}")
+    try:
+        buf = set_receive_buffer(bus, Config().bus.rcvbuf_bytes)
+        assert buf is not None and not buf.clamped      # the VM runs as root: no cap
+        with RawCan(channel, rxq_ovfl=True) as small, RawCan(channel) as tx:
+            for i in range(BUS_SECOND):
+                tx.send(0x101, i.to_bytes(4, "little").ljust(8, b"\0"))
+            kept_small = small.drain()
+            got = []
+            while len(got) < BUS_SECOND:
+                msg = bus.recv(timeout=5.0)
+                assert msg is not None, f"{len(got)} of {BUS_SECOND} frames came"
+                got.append(int.from_bytes(bytes(msg.data[:4]), "little"))
+            assert got == list(range(BUS_SECOND))
+            assert kernel_drops(bus) == 0
+            print(f"kernel default buffer: kept {len(kept_small)} of {BUS_SECOND} frames "
+                  f"(SO_RCVBUF {small.sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)})")
+            assert small.kernel_drops() == BUS_SECOND - len(kept_small) > 0
+    finally:
+        bus.shutdown()

@@ -18,6 +18,8 @@
 #   ready     with the warm cache 'systemctl start railgw' returns (READY=1);
 #   status    STATUS= shows estimates (Csy ...) while the traffic plays;
 #   alert     the journal has the worn damper's Csy alert line;
+#   rcvbuf    with systemd/60-railgw-can.conf applied (systemd-sysctl, as at boot) the
+#             service's CAN socket gets the receive buffer its configuration asks for;
 #   watchdog  a SIGSTOPped main process is killed by the watchdog and comes back;
 #   stop      'systemctl stop' is clean (Result=success);
 #   security  'systemd-analyze security railgw.service' exposure is at most 2.5.
@@ -121,6 +123,7 @@ printf 'home = /usr/bin\ninclude-system-site-packages = false\nversion = %s\n' \
 
 E=$M/etc/systemd/system
 install -D -m 644 systemd/railgw.service "$E/railgw.service"
+install -D -m 644 systemd/60-railgw-can.conf "$M/etc/sysctl.d/60-railgw-can.conf"
 mkdir -p "$E/railgw.service.d" "$M/etc/railgw"
 cat > "$E/railgw.service.d/vmtest.conf" <<EOF
 # tests/vm/run-systemd-check.sh: the guest shares the host's compiled kernels.
@@ -246,6 +249,9 @@ until_s() {  # SECONDS COMMAND...: retry COMMAND every second until it succeeds
 }
 prop() { systemctl show -p "\$1" --value railgw; }
 mark guest_up; t "guest up (systemd \$(systemctl --version | head -1 | cut -d' ' -f2))"
+# the sysctl drop-in, applied as systemd-sysctl.service applies /etc/sysctl.d at boot
+/usr/lib/systemd/systemd-sysctl /etc/sysctl.d/60-railgw-can.conf || t "warning: systemd-sysctl failed"
+t "net.core.rmem_max \$(cat /proc/sys/net/core/rmem_max)"
 # (the modules first: /usr, with the modules of this kernel, is re-mounted below)
 modprobe -a can can_raw can_bcm vcan && ip link add dev vcan0 type vcan && ip link set up vcan0 || { ok vcan FAIL; finish; }
 # /usr, the venv and the project over 9p with the page cache on (read-only): every
@@ -312,6 +318,12 @@ mark status; snap; t "status: \$(prop StatusText)"
 alerted() { journalctl -b -u railgw --no-pager -o cat | grep -qE 'alert #[0-9]+ raised .*csy'; }
 if until_s 180 alerted; then ok alert PASS; else ok alert FAIL; fi
 mark alert; snap; budget; t "alert: \$(journalctl -b -u railgw --no-pager -o cat | grep -E 'alert #[0-9]+ raised' | head -1)"
+# rcvbuf: every open of the bus got the example configuration's 4 MiB (the kernel
+# reports it doubled), none was capped at net.core.rmem_max
+bufs=\$(journalctl -b -u railgw --no-pager -o cat | grep 'CAN receive buffer')
+t "receive buffer: \$(echo "\$bufs" | tail -1)"
+if [ -n "\$bufs" ] && ! echo "\$bufs" | grep -qv 'CAN receive buffer: 8388608 bytes'; then
+  ok rcvbuf PASS; else ok rcvbuf FAIL; fi
 
 # watchdog: SIGSTOP the main process; the watchdog (WatchdogSec=10) kills it and
 # Restart=on-failure brings the service back up (READY again).
@@ -377,5 +389,5 @@ fi
 cat "$OUT/results.txt"
 fails=$(grep -c '^CHECK .* FAIL' "$OUT/results.txt" || true)
 passes=$(grep -c '^CHECK .* PASS' "$OUT/results.txt" || true)
-say "$passes passed, $fails failed (of 9); whole check $(elapsed) s wall"
+say "$passes passed, $fails failed (of 10); whole check $(elapsed) s wall"
 [ "$fails" = 0 ] && [ "$passes" = 9 ]
