@@ -194,6 +194,11 @@ class CounterCheck:
         """Forget the last counter; the next one is INITIAL."""
         self._state = CounterState()
 
+    def resync(self, counter: int) -> None:
+        """Take ``counter`` as the last one without classifying it (a caller that knows
+        from elsewhere, e.g. the sample index, how many frames were lost)."""
+        self._state = CounterState(counter)
+
 
 # ---------------------------------------------------------------- masquerade detection
 SAMPLE_INDEX_MODULUS = 1 << 16

@@ -26,7 +26,14 @@ from dataclasses import dataclass, field
 import can
 
 from gateway.can.codec import Codec
-from gateway.can.e2e import COUNTER_MODULUS, CounterCheck, CounterStatus, SenderCheck, SenderParams
+from gateway.can.e2e import (
+    COUNTER_MODULUS,
+    SAMPLE_INDEX_MODULUS,
+    CounterCheck,
+    CounterStatus,
+    SenderCheck,
+    SenderParams,
+)
 from gateway.errors import FrameError
 from gateway.records import DecodedFrame
 
@@ -48,6 +55,8 @@ class MessageStats:
     last_values: dict[str, float] = field(default_factory=dict)
     sender: SenderCheck = field(default_factory=SenderCheck)
     """The two-sender detector of this id (its state holds the SampleIdx jump counts)."""
+    last_idx: int | None = None
+    """SampleIdx of the frame that last moved the alive-counter check."""
 
     @property
     def two_senders(self) -> bool:
@@ -68,6 +77,23 @@ class MessageStats:
         """Mean accepted-frame rate since the first frame."""
         span = self.last_s - self.first_s
         return (self.accepted - 1) / span if self.accepted > 1 and span > 0 else 0.0
+
+
+MAX_LOST_BY_INDEX = 5000
+"""Frames (5 s of a 1 kHz node) a sample-index step may account for as lost; a larger
+step is a jump (a restart, a second sender: :class:`gateway.can.e2e.SenderCheck`)."""
+
+
+def _lost_by_index(dc: int | None, idx: int | None, last_idx: int | None) -> int | None:
+    """Frames lost before this one when its sample index moved on by 2 or more from the
+    last frame's, by a step its alive-counter step ``dc`` agrees with (the step mod 15);
+    else None (no sample index, in sequence, a repeat, a reorder, a jump)."""
+    if dc is None or idx is None or last_idx is None:
+        return None
+    di = (idx - last_idx) % SAMPLE_INDEX_MODULUS
+    if 2 <= di <= MAX_LOST_BY_INDEX and di % COUNTER_MODULUS == dc:
+        return di - 1
+    return None
 
 
 @dataclass
@@ -124,7 +150,17 @@ class Validator:
                 return None
         check = self._counters[msg.arbitration_id]
         last = check.state.last_counter
-        if last is not None and (frame.counter - last) % COUNTER_MODULUS == COUNTER_MODULUS - 1:
+        dc = None if last is None else (frame.counter - last) % COUNTER_MODULUS
+        lost = _lost_by_index(dc, frame.sample_idx, stats.last_idx)
+        if lost is not None:
+            # frames lost, as many as the sample index says: the counter alone would take
+            # a loss of 15k frames for a repeat and one of 15k - 1 for a reordered frame
+            # (and reject the next one as a repeat); 2026-11-26, a stalled reader
+            check.resync(frame.counter)
+            stats.lost_frames += lost
+            stats.last_idx = frame.sample_idx
+            return self._accept(frame, stats)
+        if dc == COUNTER_MODULUS - 1:
             # one behind the newest: a frame overtaken on the bus; the sample index
             # puts it back in place, so accept it without moving the counter check
             stats.reordered += 1
@@ -135,6 +171,7 @@ class Validator:
             return None
         if result.status is CounterStatus.WRONG_SEQUENCE:
             stats.lost_frames += result.lost_frames
+        stats.last_idx = frame.sample_idx
         return self._accept(frame, stats)
 
     def _accept(self, frame: DecodedFrame, stats: MessageStats) -> DecodedFrame:

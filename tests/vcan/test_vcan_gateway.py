@@ -16,10 +16,8 @@ import numpy, scipy and numba: 20-75 s per process, measured in the VM). The
 configuration changes only the estimator's grid rate and particle count
 (``e2e_traffic.OVERRIDES``, which says why and what they still achieve).
 
-In the VM the kernel's default socket receive buffer (``net.core.rmem_default``) is
-raised while the service runs: its receive thread, 30x slower under TCG, cannot take
-3 100 frames/s off the socket as they come, and the default buffer holds only a
-tenth of a second of them. On a real machine the defaults apply.
+The service's CAN socket asks for a receive buffer that holds the whole run
+(``[bus] rcvbuf_bytes`` in ``e2e_traffic.OVERRIDES``, which says why).
 """
 
 from __future__ import annotations
@@ -32,7 +30,7 @@ from pathlib import Path
 import can
 import e2e_traffic
 import pytest
-from vcanlib import CHANNEL, WAIT_S, GatewayProcess, RawCan, grow_rcvbuf, rmem_default
+from vcanlib import CHANNEL, WAIT_S, GatewayProcess, RawCan, grow_rcvbuf
 
 from gateway.can.bus import open_bus
 from gateway.can.codec import Codec
@@ -40,7 +38,6 @@ from gateway.can.source import CAN_ERR_BUSOFF, CAN_ERR_RESTARTED, BusState
 from gateway.model.vehicle import THETA_NOMINAL
 from gateway.records import DecodedFrame
 
-IN_VM = os.environ.get("RAILGW_IN_VM") == "1"
 pytestmark = [
     pytest.mark.vcan,
     pytest.mark.skipif(os.environ.get("RAILGW_VCAN_GATEWAY") == "0",
@@ -53,8 +50,6 @@ READY_WAIT_S = 5 * WAIT_S
 """Start-up under TCG: the service, then its two workers importing numba (about 60-90 s)."""
 RESULTS_WAIT_S = 3 * WAIT_S
 """From the end of the playback to the last estimate, under TCG."""
-RCVBUF_DEFAULT_BYTES = 64 << 20
-"""The VM's socket receive buffer default while the service runs: the whole run fits."""
 PARAM_CSY = 0
 """GW_Alert_Param of Csy (the DBC's value table)."""
 RAISED = 0
@@ -116,8 +111,7 @@ def gateway(tmp_path_factory: pytest.TempPathFactory, codec: Codec) -> Iterator[
     config.write_text(e2e_traffic.config_toml(CHANNEL, state))
     filters = [{"can_id": codec.message(n).frame_id, "can_mask": 0x7FF, "extended": False}
                for n in GATEWAY_MESSAGES]
-    with rmem_default(RCVBUF_DEFAULT_BYTES if IN_VM else None), \
-            open_bus(f"socketcan:{CHANNEL}", can_filters=filters) as reader:
+    with open_bus(f"socketcan:{CHANNEL}", can_filters=filters) as reader:
         grow_rcvbuf(reader.socket, 16 << 20)
         data = e2e_traffic.data_dir()      # the VM's shared results: the log survives
         gw = GatewayProcess(["run", "--config", str(config)],
