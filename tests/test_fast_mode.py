@@ -243,6 +243,26 @@ def test_checkpoint_and_restore_are_bit_exact_in_fast_mode(start_ramp_s: float) 
         assert filt.n_resamples == twin.n_resamples
 
 
+@pytest.mark.parametrize("mode", ["fast", "exact"])
+def test_a_checkpoint_keeps_no_derived_matrices(mode: str) -> None:
+    """What a checkpoint writes (to flash, every checkpoint_interval_s): never Phi or Qd
+    (functions of theta and the speed, computed again on restore), no P in fast mode's
+    steady phase (never read there), the gains there (they depend on the history);
+    the continuation is bit-exact (test above)."""
+    from gateway.estimator import checkpoint as ckpt
+
+    S = _samples(_outputs(1500, 3, seed=4))
+    filt = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=64, sensors=3, seed=1, mode=mode,
+                           fast_warmup_s=0.3))
+    filt.run(S)
+    _, arrays = ckpt.unpack(filt.checkpoint())
+    assert not {"_phi", "_qd"} & set(arrays)
+    steady = mode == "fast"
+    assert ("_P" in arrays) != steady and ("gains_p_pred" in arrays) == steady
+    twin = RBPF.restore(filt.checkpoint())
+    assert np.array_equal(twin._phi, filt._phi) and np.array_equal(twin._qd, filt._qd)
+
+
 def test_mode_is_checked() -> None:
     with pytest.raises(EstimatorError, match="expected mode 'exact' or 'fast', got 'quick'"):
         RBPFConfig(fs_hz=FS_HZ, mode="quick")
