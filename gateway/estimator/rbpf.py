@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (843): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines (850): the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor and fault bank
 are already separate modules.
 
@@ -739,6 +739,7 @@ class RBPF:
             self._disc.compute(self.theta[:, :3], self._q(), self._phi, self._qd)
         if self._steady and set(gains) == set(_GAINS):
             self._gains = SteadyGains(**gains)
+            self._P = self._gains.p_pred      # as _recompute_gains leaves it
         elif self._steady:
             self._recompute_gains()   # a checkpoint from before the gains were kept
         if self._bank is not None:
