@@ -1,6 +1,6 @@
 """Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
 
-Over 400 lines (705): the generators of two lane kernels (the doubling with its Newton
+Over 400 lines (704): the generators of two lane kernels (the doubling with its Newton
 step and warm start, the block of steady steps) and their typed wrappers, one concern.
 
 A particle's covariance and gains depend only on its theta and the speed, never on the
@@ -184,11 +184,28 @@ def _polish(n: int) -> list[str]:
     return _newton(n) + [f"        for i in range({n * n * LANES}):", "            Hm[i] += Xs[i]"]
 
 
+def _ph_change(indent: int, new: str, old: str, n: int) -> list[str]:
+    """Lines setting ``dm_l``, the largest change of ``P- H'`` from ``old`` to ``new``,
+    and ``hm_l``, the largest element of ``new H'`` (per lane): how far an iteration (the
+    doubling's, or a warm start's Newton step) still moves what the filter uses (the v0
+    direction is in no gain)."""
+    C, pad = LANES, "    " * indent
+    L = stmt(indent, "dm_{l} = 0.0") + stmt(indent, "hm_{l} = 0.0")
+    L += [f"{pad}for s in range(ny):", f"{pad}    for i in range({n}):"]
+    L += stmt(indent + 2, "u_{l} = 0.0") + stmt(indent + 2, "w_{l} = 0.0")
+    L += [f"{pad}        for j in range({n}):", f"{pad}            hk = H[s, j]"]
+    L += stmt(indent + 3, f"u_{{l}} += {new}[(i * {n} + j) * {C} + {{l}}] * hk")
+    L += stmt(indent + 3, f"w_{{l}} += {old}[(i * {n} + j) * {C} + {{l}}] * hk")
+    L += stmt(indent + 2, "dm_{l} = max(dm_{l}, abs(u_{l} - w_{l}))")
+    L += stmt(indent + 2, "hm_{l} = max(hm_{l}, abs(u_{l}))")
+    return L
+
+
 def _warm_start(n: int) -> list[str]:
-    """Lines of the warm start: Newton steps on the DARE from ``P0`` (a nearby solution,
-    e.g. the resampled ancestor's P- before a move's jitter, or the particle's own at the
-    previous speed band), each lane until its correction to ``P- H'`` is below ``tol``
-    times its largest element; quadratic convergence then leaves it within about
+    """Lines of the warm start: Newton steps on the DARE from ``P0`` (a nearby solution:
+    the resampled ancestor's P- before a move's jitter), each lane until its correction
+    to ``P- H'`` is below ``tol`` times its largest element (:func:`_ph_change`, as the
+    doubling measures its own); quadratic convergence then leaves it within about
     ``tol**2`` (measured: 2-3 steps from a 1 % jitter, docs/estimator.md "Fast mode").
     A converged lane keeps its ``P-`` while the others go on, so that a particle's result
     does not depend on its chunk. A lane still moving after ``newton_max`` steps, or not
@@ -201,21 +218,13 @@ def _warm_start(n: int) -> list[str]:
     L += ["    " + line for line in _deflate(2, "Hm", n)]
     L += ["            for itn in range(newton_max):"]
     L += step
-    L += stmt(4, "dm_{l} = 0.0")
-    L += stmt(4, "hm_{l} = 0.0")
-    L += ["                for s in range(ny):", f"                    for i in range({n}):"]
-    L += stmt(6, "u_{l} = 0.0")
-    L += stmt(6, "w_{l} = 0.0")
-    L += [f"                        for j in range({n}):",
-          "                            hk = H[s, j]"]
-    L += stmt(7, f"u_{{l}} += Xs[(i * {n} + j) * {C} + {{l}}] * hk")
-    L += stmt(7, f"w_{{l}} += Hm[(i * {n} + j) * {C} + {{l}}] * hk")
-    L += stmt(6, "dm_{l} = max(dm_{l}, abs(u_{l}))")
-    L += stmt(6, "hm_{l} = max(hm_{l}, abs(w_{l} + u_{l}))")
+    L += [f"                for i in range({n * n * C}):",
+          "                    Hn[i] = Hm[i] + Xs[i]"]
+    L += _ph_change(4, "Hn", "Hm", n)
     L += [f"                for l in range({C}):",
           f"                    if iters[ch * {C} + l] == 0:",
           f"                        for i in range({n * n}):",
-          f"                            Hm[i * {C} + l] += Xs[i * {C} + l]",
+          f"                            Hm[i * {C} + l] = Hn[i * {C} + l]",
           "                wdone = True"]
     for lane in range(C):
         p = f"ch * {C} + {lane}"
@@ -345,17 +354,7 @@ def _sda_source(n: int) -> list[str]:
           f"                        Hn[i * {C} + l] = Hm[i * {C} + l]"]
     # remove the v0 v0' component (unit v0), then measure the change
     L += _deflate(3, "Hn", n)
-    # convergence of what the filter uses, P- H' (the v0 direction is in no gain)
-    L += stmt(3, "dm_{l} = 0.0")
-    L += stmt(3, "hm_{l} = 0.0")
-    L += ["            for s in range(ny):", f"                for i in range({n}):"]
-    L += stmt(5, "u_{l} = 0.0")
-    L += stmt(5, "w_{l} = 0.0")
-    L += [f"                    for j in range({n}):", "                        hk = H[s, j]"]
-    L += stmt(6, f"u_{{l}} += Hn[(i * {n} + j) * {C} + {{l}}] * hk")
-    L += stmt(6, f"w_{{l}} += Hm[(i * {n} + j) * {C} + {{l}}] * hk")
-    L += stmt(5, "dm_{l} = max(dm_{l}, abs(u_{l} - w_{l}))")
-    L += stmt(5, "hm_{l} = max(hm_{l}, abs(u_{l}))")
+    L += _ph_change(3, "Hn", "Hm", n)
     # converged: the doubling converges quadratically, so once an iteration changes P- H'
     # by less than tol the iterate is within about tol**2 (then the Newton step polishes)
     L += ["            done = True"]

@@ -30,9 +30,9 @@ from pathlib import Path
 import can
 import e2e_traffic
 import pytest
-from vcanlib import CHANNEL, WAIT_S, GatewayProcess, RawCan, grow_rcvbuf
+from vcanlib import CHANNEL, WAIT_S, GatewayProcess, RawCan
 
-from gateway.can.bus import open_bus
+from gateway.can.bus import open_bus, set_receive_buffer
 from gateway.can.codec import Codec
 from gateway.can.source import CAN_ERR_BUSOFF, CAN_ERR_RESTARTED, BusState
 from gateway.model.vehicle import THETA_NOMINAL
@@ -112,7 +112,7 @@ def gateway(tmp_path_factory: pytest.TempPathFactory, codec: Codec) -> Iterator[
     filters = [{"can_id": codec.message(n).frame_id, "can_mask": 0x7FF, "extended": False}
                for n in GATEWAY_MESSAGES]
     with open_bus(f"socketcan:{CHANNEL}", can_filters=filters) as reader:
-        grow_rcvbuf(reader.socket, 16 << 20)
+        set_receive_buffer(reader, 16 << 20)
         data = e2e_traffic.data_dir()      # the VM's shared results: the log survives
         gw = GatewayProcess(["run", "--config", str(config)],
                             log_path=data / "gateway.log" if data else None)

@@ -7,9 +7,9 @@ from collections import defaultdict
 
 import can
 import pytest
-from vcanlib import grow_rcvbuf, python_module, socket_drops, wait_for
+from vcanlib import python_module, socket_drops, wait_for
 
-from gateway.can.bus import open_bus
+from gateway.can.bus import open_bus, set_receive_buffer
 from gateway.can.e2e import COUNTER_MODULUS
 from gateway.can.source import BusSource
 
@@ -26,7 +26,7 @@ def test_simulator_frames_arrive_complete_and_decode(channel, codec):
 
     def bus() -> can.BusABC:
         b = open_bus(f"socketcan:{channel}", can_filters=codec.can_filters())
-        grow_rcvbuf(b.socket, RCVBUF_BYTES)
+        set_receive_buffer(b, RCVBUF_BYTES)
         sockets.append(b.socket)
         return b
 

@@ -37,7 +37,6 @@ CAN_RAW_ERR_FILTER = 2
 CAN_ERR_MASK = 0x1FFFFFFF
 CAN_FRAME = struct.Struct("=IB3x8s")
 """struct can_frame: can_id (with the EFF/RTR/ERR flags), len, 3 pad bytes, data[8]."""
-SO_RCVBUFFORCE = 33
 SO_RXQ_OVFL = 40
 SO_MEMINFO = 55
 SK_MEMINFO_DROPS = 8
@@ -185,30 +184,6 @@ def kernel_filters(sock: socket.socket, max_filters: int = 64) -> list[tuple[int
     """The (can_id, can_mask) receive filters installed on a raw CAN socket."""
     raw = sock.getsockopt(socket.SOL_CAN_RAW, CAN_RAW_FILTER, 8 * max_filters)
     return [struct.unpack_from("=II", raw, i) for i in range(0, len(raw), 8)]
-
-
-@contextmanager
-def rmem_default(nbytes: int | None) -> Iterator[None]:
-    """Sockets created meanwhile get a ``nbytes`` receive buffer (net.core.rmem_default,
-    root; restored afterwards); None changes nothing."""
-    path = Path("/proc/sys/net/core/rmem_default")
-    if nbytes is None:
-        yield
-        return
-    old = path.read_text().strip()
-    path.write_text(str(nbytes))
-    try:
-        yield
-    finally:
-        path.write_text(old)
-
-
-def grow_rcvbuf(sock: socket.socket, nbytes: int) -> None:
-    """Make the receive buffer ``nbytes`` (past net.core.rmem_max when root)."""
-    try:
-        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, nbytes)
-    except PermissionError:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, nbytes)
 
 
 # ---------------------------------------------------------------- processes
