@@ -3,8 +3,9 @@
 * once P has converged, the steady-gain step is the exact step: states and per-sample
   log-likelihoods agree to rounding (issue 14's acceptance);
 * the gains are the fixed point of the DARE, checked against scipy's independent solver;
-* a sample with a missing sensor, a checkpoint and restore, the mode switch in the
-  configuration, and the recovered parameters against the truth that made the data.
+* a sample without every sensor (the exact recursion takes over), a checkpoint and
+  restore, the mode switch in the configuration, and the recovered parameters against
+  the truth that made the data.
 """
 
 from __future__ import annotations
@@ -196,25 +197,47 @@ def test_every_particle_converges_over_the_prior_box() -> None:
     assert np.median(it) <= 22                       # doubling: 2**20 samples and more
 
 
-def test_a_missing_sensor_uses_the_steady_prediction() -> None:
-    """One step with sensor 1 missing: exact from the steady P+ equals the subset path."""
-    rng = np.random.default_rng(9)
-    bank = Bank(_theta_box(rng, 16), 3)
+@pytest.mark.parametrize("n_sensors", [3, 5])
+def test_a_sample_without_every_sensor_hands_over_to_the_exact_recursion(
+        n_sensors: int) -> None:
+    """In the steady phase, a hold (0.3 s without data: a curve, a dropout) and, 0.15 s
+    after it, one sensor out for 20 ms: from the hold's first sample on, every particle's
+    filter is the exact recursion started from its steady P+, sample for sample
+    (log-likelihoods within 1e-6, issue 14's bound; measured 2e-9 / 1.0e-8 with 3 / 5
+    sensors), until ``fast_warmup_s`` of full data has passed after the outage; then the
+    steady gains again. Measured before 2026-11-27, when steady gains predicted through
+    the hold and a partial outage used the steady P- for up to 20 ms: 4-90 nats between
+    particles 10 % apart after a 10-20 ms hold (docs/estimator.md "Samples without every
+    sensor")."""
+    rng = np.random.default_rng(3)
+    theta = _theta_box(rng, 16, 0.7, 1.4)
+    Y = _outputs(3300, n_sensors, seed=12)
+    Y[2000:2300] = np.nan
+    Y[2450:2470, 1] = np.nan
+    S = _samples(Y)
+    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=16, sensors=n_sensors, mode="fast",
+                     resample=False, monitor=None, faults=None, fast_warmup_s=0.3, seed=0)
+    filt = RBPF(cfg)
+    filt.set_particles(theta)
+    for smp in S[:2000]:
+        filt.advance(smp)
+    assert filt._steady
+    bank = Bank(theta, n_sensors)
     nch = n_chunks(bank.m)
-    x0 = to_lanes(rng.normal(size=(bank.m, NZ)) * 1e-3)
-    y = _outputs(1, 3, seed=2)[0]
-    use = np.array([True, False, True])
-    Xe, Xf = x0.copy(), x0.copy()
-    lle, llf = np.zeros(nch * LANES), np.zeros(nch * LANES)
-    nis, dead = np.zeros(nch * LANES), np.zeros(nch * LANES, dtype=bool)
-    kf_step(Xe, to_lanes(bank.posterior()), bank.phi, bank.qd, bank.H, bank.r, y, use,
-            np.eye(NZ), lle, nis, dead)
-    st.kf_subset(Xf, bank.phi, bank.H, bank.r, y, use, bank.gains, bank.m, llf, nis, dead)
-    assert np.allclose(lle[:bank.m], llf[:bank.m], rtol=1e-8, atol=1e-9)
-    xe, xf = from_lanes(Xe, bank.m, (NZ,)), from_lanes(Xf, bank.m, (NZ,))
-    proj = np.eye(NZ)[None] - np.einsum("mi,mj->mij", bank.v0, bank.v0)
-    d = np.einsum("mij,mj->mi", proj, xe - xf)
-    assert (np.abs(d).max(1) / np.abs(xe).max(1)).max() < 1e-8
+    Xe, Pe = filt._X.copy(), to_lanes(bank.posterior())
+    worst = 0.0
+    for k in range(2000, 2769):
+        filt.advance(S[k])
+        assert not filt._steady, k
+        use = np.isfinite(Y[k])
+        lle = np.zeros(nch * LANES)
+        nis, dead = np.zeros(nch * LANES), np.zeros(nch * LANES, dtype=bool)
+        kf_step(Xe, Pe, bank.phi, bank.qd, bank.H, bank.r, np.where(use, Y[k], 0.0), use,
+                np.eye(NZ), lle, nis, dead)
+        worst = max(worst, float(np.abs(filt._ll[:bank.m] - lle[:bank.m]).max()))
+    assert worst < 1e-6, worst
+    filt.advance(S[2769])
+    assert filt._steady
 
 
 def _samples(Y: np.ndarray) -> list[Sample]:
@@ -309,16 +332,17 @@ def test_blocks_of_samples_equal_stepping_one_by_one(mode: str, n_sensors: int,
     """RBPF.run steps uneventful runs of samples in one compiled call (the steady kernel,
     or the exact one in exact mode and fast mode's warm-up); stepping every sample
     through step() gives the same floats: estimates, resamples, detections, the fault
-    bank's start and the whole filter state at the end (its checkpoint), including a gap
-    of predict-only samples, one with a missing sensor and a speed step; also with the
+    bank's start and the whole filter state at the end (its checkpoint), including a hold
+    of predict-only samples (after which the bank starts again), one with a missing
+    sensor and a speed step; also with the
     start's likelihood ramp (``start_ramp_s``), which ends inside a block."""
-    Y = _outputs(4000, n_sensors, seed=8)
+    Y = _outputs(7500, n_sensors, seed=8)
     S = _samples(Y)
-    for k in (2600, 3300):        # the second stops the running fault bank, which restarts
+    for k in (2600, 6600):        # the second stops the running fault bank, which restarts
         S[k] = Sample(S[k].t_s, np.where(np.arange(n_sensors) == 1, np.nan, Y[k]), V_MPS)
-    for k in range(3000, 3050):
+    for k in range(3000, 3050):   # a hold: the bank waits start_after_s of data again
         S[k] = Sample(S[k].t_s, Y[k], V_MPS, False)
-    for k in range(3500, 4000):
+    for k in range(7000, 7500):
         S[k] = Sample(S[k].t_s, Y[k], V_MPS * 1.01)
     cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=200, sensors=n_sensors, seed=3, mode=mode,
                      fast_warmup_s=0.5, start_ramp_s=start_ramp_s)

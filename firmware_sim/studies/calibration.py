@@ -18,8 +18,10 @@ nominal) and runs 10 s (start-up: is the lock-in gone everywhere in the box?); n
 :class:`gateway.estimator.rbpf_config.RBPFConfig` on or off (default: the filter's own),
 ``--start-ramp-s`` with that ``start_ramp_s`` (default: the service's). ``--at-s`` sets
 the check times (the record lasts until the last one).
-``--from-rest`` starts the truth at rest instead of in stationary vibration (another
-simulator's convention; :func:`firmware_sim.truth.simulate` ``burn_in_s`` = 0).
+``--hold AT FOR`` holds the updates from AT s for FOR s (a curve and its straight hold:
+the filters predict through it). ``--from-rest`` starts the truth at rest instead of in
+stationary vibration (another simulator's convention;
+:func:`firmware_sim.truth.simulate` ``burn_in_s`` = 0).
 
 ``summary < rows.jsonl`` gives, per (study, option, sensors, time): the share of records
 with the truth inside +-2 sigma per parameter, the largest |z|, and the smallest
@@ -39,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
+from firmware_sim.studies.detection import FS_HZ, V_MPS, holds, run, service_filter
 from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
@@ -82,18 +84,21 @@ def ml_fit(Y: np.ndarray, sensors: int, seconds: float) -> tuple[list[float], li
 def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              ml: bool, at_s: Sequence[float] | None = None,
              moves_drop_null: bool | None = None, from_rest: bool = False,
-             start_ramp_s: float | None = None) -> list[dict[str, Any]]:
+             start_ramp_s: float | None = None, hold: tuple[float, float] | None = None
+             ) -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
     None: the default), and ``start_ramp_s`` that one; ``from_rest``: the truth starts at
-    rest."""
+    rest; ``hold`` (start, length) in s: no updates then, as the gate holds them in a
+    curve."""
     theta = THETA_SEC42.as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest)
     filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
                           start_ramp_s=start_ramp_s)
-    est, found, _ = run(Y, filt)
+    held = None if hold is None else holds(len(Y), [hold[0]], hold[1])
+    est, found, _ = run(Y, filt, held=held)
     out = []
     for t in at_s:
         e = min(est, key=lambda x: abs(x.t_s - t))
@@ -102,6 +107,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
             "study": what, "sensors": sensors, "seed": seed, "t_s": t, "mode": mode,
             "moves_drop_null": filt.config.moves_drop_null,
             "from_rest": from_rest, "start_ramp_s": filt.config.start_ramp_s,
+            "hold": None if hold is None else list(hold),
             "particles": particles, "truth": theta.tolist(), "mean": m.tolist(),
             "std": s.tolist(), "z": np.round((m - theta) / s, 3).tolist(),
             "err_pct": np.round(100 * (m - theta) / theta, 3).tolist(),
@@ -119,10 +125,10 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (study, option, sensors, t_s): records; per parameter the share with |z| <= 2, the
     largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
-    def key_of(r: dict[str, Any]) -> tuple[str, bool, float, bool, int, float]:
+    def key_of(r: dict[str, Any]) -> tuple[str, bool, float, bool, int, float, str, str]:
         return (r["study"], bool(r.get("moves_drop_null", False)),
                 float(r.get("start_ramp_s", 0.0)), bool(r.get("from_rest", False)),
-                r["sensors"], r["t_s"])
+                r["sensors"], r["t_s"], r.get("mode", "fast"), str(r.get("hold")))
 
     out = []
     for key in sorted({key_of(r) for r in rows}):
@@ -130,7 +136,8 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         z = np.abs(np.array([r["z"] for r in case]))
         row: dict[str, Any] = {"study": key[0], "moves_drop_null": key[1],
                                "start_ramp_s": key[2], "from_rest": key[3],
-                               "sensors": key[4], "t_s": key[5], "records": len(case)}
+                               "sensors": key[4], "t_s": key[5], "mode": key[6],
+                               "hold": key[7], "records": len(case)}
         for i, name in enumerate(PARAM_NAMES):
             row[f"{name}_within_2sigma"] = round(float(np.mean(z[:, i] <= 2.0)), 3)
             row[f"{name}_max_abs_z"] = round(float(z[:, i].max()), 2)
@@ -163,6 +170,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="check times in s (default: paper 5 20, box 10)")
     ap.add_argument("--from-rest", action="store_true",
                     help="the truth starts at rest (default: in stationary vibration)")
+    ap.add_argument("--hold", type=float, nargs=2, default=None, metavar=("AT_S", "FOR_S"),
+                    help="no updates from AT_S for FOR_S seconds, as the gate holds them in "
+                         "a curve (default: none)")
     args = ap.parse_args(argv)
     if args.what == "summary":
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
@@ -174,7 +184,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for row in rows_for(args.what, seed, ns, args.particles, args.mode,
                                 ml=args.what == "paper" and not args.no_ml,
                                 at_s=args.at_s, moves_drop_null=args.moves_drop_null,
-                                from_rest=args.from_rest, start_ramp_s=args.start_ramp_s):
+                                from_rest=args.from_rest, start_ramp_s=args.start_ramp_s,
+                                hold=None if args.hold is None else tuple(args.hold)):
                 print(json.dumps(row), flush=True)
     return 0
 

@@ -17,6 +17,8 @@ nominal, Sec. 4.2 speed) with 3 and 5 sensors and prints one JSON line per run:
   ``alerts_healthy`` / ``alerts_before`` the same for alerts.
 
 ``nominal --seconds 600`` runs healthy data and counts detections (false alarms);
+``--hold-every-s 30 --hold-s 3`` holds the updates for 3 s every 30 s, as the gate does in
+a curve and its straight hold (nominal runs);
 ``summary < rows.jsonl`` gives the per-case medians and worst cases.
 Data seed ``2000 + seed`` (fresh: the accuracy study uses ``1000 + seed``), filter seed
 ``seed``; the filter is the service's (:func:`gateway.runtime.pipeline.build_estimator`
@@ -101,10 +103,28 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
 
 
-def run(Y: np.ndarray, filt: Filter, every: int = 100
+def holds(n: int, starts_s: Sequence[float], length_s: float) -> np.ndarray:
+    """Which of ``n`` samples at :data:`FS_HZ` (sample k at (k + 1) / FS_HZ s) the gate
+    holds (a curve, its straight hold): ``length_s`` from each of ``starts_s``. (n,) bool."""
+    t_s = np.arange(1, n + 1) / FS_HZ
+    held = np.zeros(n, dtype=bool)
+    for t0 in starts_s:
+        held |= (t_s >= t0) & (t_s < t0 + length_s)
+    return held
+
+
+def periodic_holds(n: int, every_s: float | None, length_s: float) -> np.ndarray | None:
+    """:func:`holds` at every multiple of ``every_s`` (None: no holds)."""
+    if every_s is None:
+        return None
+    return holds(n, np.arange(every_s, n / FS_HZ, every_s).tolist(), length_s)
+
+
+def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None = None
         ) -> tuple[list[Any], list[tuple[float, str, float, float]], Filter]:
     """Estimates every ``every`` samples and the bank's detections (decision time,
-    parameter, located value relative to nominal, confirmation time)."""
+    parameter, located value relative to nominal, confirmation time); samples where
+    ``held`` (T,) is True come without an update, as the gate sends them in a curve."""
     found: list[tuple[float, str, float, float]] = []
 
     def samples() -> Iterator[Sample]:
@@ -113,7 +133,8 @@ def run(Y: np.ndarray, filt: Filter, every: int = 100
             if filt.n_fault_detections > seen:
                 seen = filt.n_fault_detections
                 found.append(_last(filt))
-            yield Sample(t_s=(k + 1) / FS_HZ, values=Y[k], speed_mps=V_MPS)
+            yield Sample(t_s=(k + 1) / FS_HZ, values=Y[k], speed_mps=V_MPS,
+                         update=held is None or not held[k])
 
     est = filt.run(samples(), output_every=every)
     if filt.n_fault_detections > len(found):
@@ -203,15 +224,18 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
 def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode: str,
                 noise_scale: float = 1.0, sensor_noise: str = "measured",
                 moves_drop_null: bool | None = None, locate_min_s: float | None = None,
-                locate_max_s: float | None = None) -> dict[str, Any]:
+                locate_max_s: float | None = None, hold_every_s: float | None = None,
+                hold_s: float = 3.0) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
-                                             locate_max_s=locate_max_s))
+                                             locate_max_s=locate_max_s),
+                           held=periodic_holds(len(Y), hold_every_s, hold_s))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
             "noise_scale": noise_scale, **_noise_columns(filt),
+            "hold_every_s": hold_every_s, "hold_s": hold_s if hold_every_s else None,
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
             "particles": particles, "seconds": seconds, "detections": len(found),
             "alerts": len(alerts(est)),
@@ -221,6 +245,8 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
                               for m, t in zip(last.mean[:3], th[-1], strict=True)],
             "final_sigma_pct": [round(100 * s / m, 2)
                                 for m, s in zip(last.mean[:3], last.std[:3], strict=True)],
+            "final_z": [round((m - t) / s, 2)
+                        for m, s, t in zip(last.mean[:3], last.std[:3], th[-1], strict=True)],
             "wall_s": round(time.perf_counter() - t0, 1)}
 
 
@@ -335,6 +361,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=None,
                     help="run length (faults: 18 s, nominal: 600 s)")
     ap.add_argument("--fault-at", type=float, default=8.0)
+    ap.add_argument("--hold-every-s", type=float, default=None,
+                    help="nominal: samples without an update (the gate's hold in a curve) "
+                         "for --hold-s at every multiple of this, s (default: none)")
+    ap.add_argument("--hold-s", type=float, default=3.0,
+                    help="length of each hold, s (3: a 1 s curve and the 2 s straight hold)")
     ap.add_argument("--particles", type=int, default=1000)
     ap.add_argument("--mode", choices=("fast", "exact"), default="fast")
     ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
@@ -347,6 +378,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="the fault bank's longest location phase, s (default: the bank's "
                          "own; its locate_s: no extension of an inconclusive location)")
     args = ap.parse_args(argv)
+    if args.hold_every_s is not None and not args.hold_every_s > args.hold_s > 0:
+        ap.error(f"expected --hold-every-s > --hold-s > 0 s, got {args.hold_every_s} and "
+                 f"{args.hold_s}")
     if args.locate_min_s is not None and not args.locate_min_s >= 0:
         ap.error(f"expected --locate-min-s >= 0 s, got {args.locate_min_s}")
     if args.locate_max_s is not None and not args.locate_max_s >= FaultBankConfig.locate_s:
@@ -368,7 +402,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     sensor_noise=args.sensor_noise,
                                     moves_drop_null=args.moves_drop_null,
                                     locate_min_s=args.locate_min_s,
-                                  locate_max_s=args.locate_max_s)]
+                                    locate_max_s=args.locate_max_s,
+                                    hold_every_s=args.hold_every_s, hold_s=args.hold_s)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,

@@ -48,8 +48,11 @@ since its filters started and every parameter's posterior std is within
 start or a detection it holds its CUSUMs at 0 for ``hold_s``. ``theta_ref`` follows
 the cloud at every resample-move (:meth:`FaultBank.refresh`); every state that passes to
 a filter at another theta there, or at a start, loses its static-yaw component first,
-because a moved reference turns it into a false CUSUM rise. Samples without data are
-predicted; the estimator stops the bank at a sample with only some sensors.
+because a moved reference turns it into a false CUSUM rise. The estimator stops the bank
+at a sample without every sensor, and after one without data (a hold: a curve, a
+dropout) waits ``start_after_s`` of data again before it starts it: steady gains score
+the data after a hold too sharply (a false Csy drop after a 3 s hold, measured). Samples
+without data that reach :meth:`FaultBank.scan` are predicted.
 
 State is five arrays (:meth:`FaultBank.arrays`, the location grid's covariances among
 them), so checkpoints stay bit-exact; the gains are recomputed from them and the speed

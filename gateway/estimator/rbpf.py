@@ -55,7 +55,6 @@ from gateway.estimator.steady import (
     SteadyGains,
     kf_steady,
     kf_steady_block,
-    kf_subset,
     steady_gains,
     steady_posterior,
     without_null,
@@ -73,9 +72,6 @@ from gateway.records import Estimate, Located, NoiseCheck, Sample
 __all__ = ["RBPF", "RBPFConfig", "AR_NAME", "PRIOR_SAMPLES"]
 
 log = logging.getLogger(__name__)
-SUBSET_STEADY_S = 0.02
-"""Fast mode: a run of samples with only some sensors this long (s) is updated from the
-steady P- of the full set; a longer outage hands over to the exact recursion."""
 MAX_WINDOW = 4096
 """Samples :meth:`RBPF.run` holds at once (outputs further apart are read in pieces)."""
 BLOCK_MIN = 16
@@ -96,8 +92,8 @@ _GAINS = ("p_pred", "g", "s", "c0", "iters")
 """The fields of :class:`SteadyGains` a fast-mode checkpoint keeps."""
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
-            "_subset_run", "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
-            "_ramp_from")
+            "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
+            "_ramp_from", "_bank_from")
 
 
 class RBPF:
@@ -114,7 +110,6 @@ class RBPF:
         self._warm_left = 0
         self._ramp_from = 0
         self._ramp_n = int(round(config.start_ramp_s * config.fs_hz))
-        self._subset_run = 0
         self._at_prior = False
         self._prior_v = float("nan")
         m = config.n_particles
@@ -126,7 +121,8 @@ class RBPF:
         self._w_of: np.ndarray | None = None
         self._w_cache = np.zeros(m)
         self._data_since_start = 0
-        self._bank_check_at = 0
+        self._bank_from = 0     # _data_since_start at the last sample without data: the
+        self._bank_check_at = 0  # fault bank waits start_after_s of data from there
         self._block_len = BLOCK_MIN
         self._v0_key: tuple[object, object] | None = None
         self._v0 = np.zeros((0, NZ))
@@ -172,6 +168,7 @@ class RBPF:
         self.updated_since_move = 0
         self.monitor_state = initial_state()
         self._data_since_start = 0
+        self._bank_from = 0
         if self._bank is not None:
             self._bank.stop()
         self._p0_set = False
@@ -239,14 +236,15 @@ class RBPF:
     def _enter_steady(self) -> None:
         """Fast mode, after the exact warm-up: every filter takes its steady-state gains."""
         self._steady = True
-        self._subset_run = 0
         self._recompute_gains()
 
     def _leave_steady(self) -> None:
-        """Fast mode, a sensor outage longer than ``SUBSET_STEADY_S``: the steady gains of
-        the full sensor set no longer fit (the exact P would widen), so the exact
-        recursion takes over from the steady covariance until ``fast_warmup_s`` of full
-        data has passed."""
+        """Fast mode, a sample without every sensor: the steady gains of the full sensor
+        set no longer fit (the exact P widens while a sensor is missing, and the steady
+        innovation variances would score the returning data too sharply: tens of nats
+        between particles 10 % apart after 10-20 ms, measured), so the exact recursion
+        takes over from the steady covariance, exactly, until ``fast_warmup_s`` of full
+        data has passed (docs/estimator.md "Samples without every sensor")."""
         v0 = self._particle_null()
         P = steady_posterior(self._gains, v0, self._H, self._r, self.config.n_particles)
         self._P = to_lanes(P.reshape(len(P), -1))
@@ -354,14 +352,9 @@ class RBPF:
                     self._P0, self._ll, self._nis, self._dead)
             if self._fast:
                 self._warm_up(use)
-        elif use.all() or not use.any():
-            self._subset_run = 0
+        elif use.all():
             kf_steady(self._X, self._phi, self._H, y, use, self._gains, self._ll, self._nis,
                       self._dead)
-        elif self._subset_run < SUBSET_STEADY_S * self.config.fs_hz:
-            self._subset_run += 1
-            kf_subset(self._X, self._phi, self._H, self._r, y, use, self._gains,
-                      self.config.n_particles, self._ll, self._nis, self._dead)
         else:
             self._leave_steady()
             kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
@@ -383,6 +376,8 @@ class RBPF:
             ess = pt.effective_sample_size(w)
         est = self._summary(sample.t_s, used, w) if summarize else None
         self._data_since_start += int(used)
+        if not used:
+            self._bank_from = self._data_since_start
         fault = self._bank_step(y, use, float(sample.t_s)) if self._bank is not None else None
         alarm = False
         if self.config.monitor is not None and used and fault is None:
@@ -398,10 +393,14 @@ class RBPF:
 
     def _bank_step(self, y: np.ndarray, use: np.ndarray, t_s: float) -> Detection | None:
         """The fault bank's view of one sample (after the particles took it): scored
-        when every sensor is used, predicted when none is, idle after a partial one."""
+        when every sensor is used. A sample with only some sensors stops it; so does one
+        with none, and the bank then waits ``start_after_s`` of data again before it
+        starts: its steady-gain filters would score the data after a hold (a curve, a
+        dropout) too sharply, and the cloud's states must first converge again
+        (docs/estimator.md "Samples without every sensor")."""
         bank = self._bank
         assert bank is not None
-        if use.any() and not use.all():
+        if not use.all():
             bank.stop()
             return None
         if not bank.active:
@@ -415,7 +414,7 @@ class RBPF:
         bank, cfg = self._bank, self.config
         assert bank is not None and cfg.faults is not None
         if self.n_steps < self._bank_check_at or \
-                self._data_since_start < cfg.faults.start_after_s * cfg.fs_hz:
+                self._data_since_start - self._bank_from < cfg.faults.start_after_s * cfg.fs_hz:
             return
         self._bank_check_at = self.n_steps + max(1, int(round(0.1 * cfg.fs_hz)))
         mean, std, xs, _, _ = _posterior(self._weights(), self.z, self._X)
@@ -495,6 +494,10 @@ class RBPF:
             elif bool(smp.update) and fin.any():
                 k = j
                 break
+            elif self._steady or (full[j - 1] if j else
+                                  self._data_since_start != self._bank_from):
+                k = j         # a hold starts: the per-sample path leaves the steady gains,
+                break         # stops the fault bank and restarts its clock
         warming = self._fast and not self._steady
         if warming:                       # the block ends where the warm-up does
             k = min(k, int(np.searchsorted(np.cumsum(full[:k]), self._warm_left)) + 1)
@@ -565,7 +568,7 @@ class RBPF:
         passed); k if none."""
         cfg = self.config
         assert cfg.faults is not None
-        need = cfg.faults.start_after_s * cfg.fs_hz - self._data_since_start
+        need = cfg.faults.start_after_s * cfg.fs_hz - (self._data_since_start - self._bank_from)
         due = (np.arange(len(full)) >= self._bank_check_at - self.n_steps - 1) \
             & (np.cumsum(full) >= need)
         return int(np.argmax(due)) + 1 if due.any() else len(full)

@@ -627,9 +627,9 @@ def kf_steady(x: np.ndarray, phi: np.ndarray, H: np.ndarray, y: np.ndarray,
     """One steady-gain step for all particles, in place (module docstring): the block
     kernel with one sample.
 
-    ``use`` must select every sensor or none (predict only); a subset needs gains of
-    its own (:func:`kf_subset`). ``ll``, ``nis`` are added to and ``dead`` is set, as in
-    the exact kernel.
+    ``use`` must select every sensor or none (predict only; the estimator hands a sample
+    without every sensor to the exact recursion instead, :meth:`RBPF._leave_steady`).
+    ``ll``, ``nis`` are added to and ``dead`` is set, as in the exact kernel.
     """
     LL = np.empty((1, ll.shape[0]))
     NIS = np.empty_like(LL)
@@ -673,32 +673,3 @@ def steady_posterior(gains: SteadyGains, v0: np.ndarray, H: np.ndarray, r: np.nd
     need = np.einsum("mi,mij,mj->m", c, np.linalg.pinv(rest, rcond=1e-12, hermitian=True), c)
     add = np.maximum(1.01 * need + 1e-300 - a, 0.0)
     return P + add[:, None, None] * np.einsum("mi,mj->mij", v0, v0)
-
-
-def kf_subset(x: np.ndarray, phi: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray,
-              use: np.ndarray, gains: SteadyGains, n_particles: int, ll: np.ndarray,
-              nis: np.ndarray, dead: np.ndarray) -> None:
-    """A step with only some sensors: the joint update from the steady P- (rare path).
-
-    The exact filter's P would widen a little after a missing sample; fast mode keeps
-    the steady P- (docs/estimator.md "Fast mode").
-    """
-    m = n_particles
-    P = from_lanes(gains.p_pred, m, (NZ, NZ))
-    F = from_lanes(phi, m, (NZ, NZ))
-    X = np.einsum("mij,mj->mi", F, from_lanes(x, m, (NZ,)))
-    hu = H[use]
-    ph = P @ hu.T                                           # (m, 16, k)
-    S = hu @ ph + np.diag(r[use])                           # (m, k, k)
-    e = y[use][None, :] - X @ hu.T                          # (m, k)
-    sol = np.linalg.solve(S, e[..., None])[..., 0]
-    X = X + np.einsum("mik,mk->mi", ph, sol)
-    q = np.einsum("mk,mk->m", e, sol)
-    _, logdet = np.linalg.slogdet(S)
-    c0 = gains.c0[:m]
-    bad = ~np.isfinite(c0)
-    ll[:m] += np.where(bad, -np.inf, -0.5 * (logdet + len(hu) * _LOG_2PI + q))
-    nis[:m] += np.where(bad, 0.0, q)
-    dead[:m] |= bad
-    X[bad] = 0.0
-    x[:] = to_lanes(X)
