@@ -18,7 +18,8 @@ nominal, Sec. 4.2 speed) with 3 and 5 sensors and prints one JSON line per run:
 
 ``nominal --seconds 600`` runs healthy data and counts detections (false alarms);
 ``--hold-every-s 30 --hold-s 3`` holds the updates for 3 s every 30 s, as the gate does in
-a curve and its straight hold (nominal runs);
+a curve and its straight hold (nominal runs); ``--hold-at-s 7 10`` holds them for
+``--hold-s`` from each of those times (fault runs);
 ``summary < rows.jsonl`` gives the per-case medians and worst cases.
 Data seed ``2000 + seed`` (fresh: the accuracy study uses ``1000 + seed``), filter seed
 ``seed``; the filter is the service's (:func:`gateway.runtime.pipeline.build_estimator`
@@ -175,13 +176,14 @@ def alerts(est: Sequence[Any], act_on_located: bool = True) -> list[tuple[float,
 def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
-              locate_min_s: float | None = None, locate_max_s: float | None = None
-              ) -> dict[str, Any]:
+              locate_min_s: float | None = None, locate_max_s: float | None = None,
+              hold_at_s: Sequence[float] = (), hold_s: float = 3.0) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
-                                             locate_max_s=locate_max_s))
+                                             locate_max_s=locate_max_s),
+                           held=holds(len(Y), hold_at_s, hold_s) if hold_at_s else None)
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -198,6 +200,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
             "noise_scale": noise_scale, **_noise_columns(filt),
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
+            "hold_at_s": list(hold_at_s) or None, "hold_s": hold_s if hold_at_s else None,
             "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
             "confirmed_s": round(right[0][3] - fault_at_s, 3) if right else None,
             "detect_s": round(right[0][0] - fault_at_s, 3) if right else None,
@@ -361,6 +364,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=None,
                     help="run length (faults: 18 s, nominal: 600 s)")
     ap.add_argument("--fault-at", type=float, default=8.0)
+    ap.add_argument("--hold-at-s", type=float, nargs="+", default=[],
+                    help="faults: holds of --hold-s starting at these times, s (default: "
+                         "none)")
     ap.add_argument("--hold-every-s", type=float, default=None,
                     help="nominal: samples without an update (the gate's hold in a curve) "
                          "for --hold-s at every multiple of this, s (default: none)")
@@ -411,7 +417,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   sensor_noise=args.sensor_noise,
                                   moves_drop_null=args.moves_drop_null,
                                   locate_min_s=args.locate_min_s,
-                                  locate_max_s=args.locate_max_s)
+                                  locate_max_s=args.locate_max_s,
+                                  hold_at_s=args.hold_at_s, hold_s=args.hold_s)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

@@ -83,7 +83,12 @@ contraction, when exact mode resamples every few dozen samples, an unbounded blo
 stepped a whole 4096-sample window to keep 30 of them (10 ms per sample instead of
 1). Block lengths change no result (:meth:`RBPF.run` equals :meth:`RBPF.step`)."""
 PRIOR_SAMPLES = 2**13
-"""The state prior is the covariance this many samples after a start from rest."""
+"""The state prior is the covariance this many samples after a start from rest. A hold
+(samples without data) this long restarts fast mode's filters at it, where they wait
+without a recursion (a standstill costs nothing): the exact prediction has forgotten the
+state by then (the log-likelihood of the returning data moves by at most 0.04 nats
+between particles 10 % apart, measured after 9-12 s holds; docs/estimator.md "Samples
+without every sensor")."""
 _ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
 LOCATED_FOR_S = 2.0
 """Data time (s) over which estimates carry the fault bank's latest detection
@@ -93,7 +98,7 @@ _GAINS = ("p_pred", "g", "s", "c0", "iters")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
             "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
-            "_ramp_from", "_bank_from")
+            "_ramp_from", "_bank_from", "_last_data_step")
 
 
 class RBPF:
@@ -138,6 +143,7 @@ class RBPF:
         self._start_filters()
         self.t_s = 0.0
         self.n_steps = 0
+        self._last_data_step = 0    # n_steps at the last sample with data
         self.n_resamples = 0
         self.n_detections = 0
         self.n_reseeds = 0
@@ -367,6 +373,8 @@ class RBPF:
                                                    self._weights())
         self.t_s = float(sample.t_s)
         self.n_steps += 1
+        if used:
+            self._last_data_step = self.n_steps
         self.since_move += int(not waiting)
         self.updated_since_move += int(used)
         self._w_cache, self._w_of = w, self.logw
@@ -389,7 +397,15 @@ class RBPF:
             self._resample_move(w, False, fault)
         elif self.config.resample and (alarm or ess < self.config.ess_threshold * m):
             self._resample_move(w, alarm)
+        if self._held_long():
+            self.restart_filters()
         return est
+
+    def _held_long(self) -> bool:
+        """Fast mode: a hold of :data:`PRIOR_SAMPLES` since the last data has run through
+        filters that are not at their prior."""
+        return self._fast and not self._at_prior \
+            and self.n_steps - self._last_data_step >= PRIOR_SAMPLES
 
     def _bank_step(self, y: np.ndarray, use: np.ndarray, t_s: float) -> Detection | None:
         """The fault bank's view of one sample (after the particles took it): scored
@@ -501,6 +517,11 @@ class RBPF:
         warming = self._fast and not self._steady
         if warming:                       # the block ends where the warm-up does
             k = min(k, int(np.searchsorted(np.cumsum(full[:k]), self._warm_left)) + 1)
+        if self._fast:                    # ... and where a hold grows long (only a block's
+            held = self.n_steps - self._last_data_step     # leading samples can be held)
+            left = max(0, PRIOR_SAMPLES - held)
+            if not full[:min(k, left)].any():
+                k = min(k, left)
         bank = self._bank
         if bank is not None and not bank.active:  # ... and at the bank's next start check
             k = min(k, self._until_bank_check(full[:k]))
@@ -552,6 +573,8 @@ class RBPF:
             self.logw = logw
             self._w_cache, self._w_of = w, logw
             self.t_s = float(samples[took - 1].t_s)
+            if full[:took].any():
+                self._last_data_step = self.n_steps + int(np.flatnonzero(full[:took])[-1]) + 1
             self.n_steps += took
             self.since_move += took
             self.updated_since_move += int(full[:took].sum())
@@ -559,6 +582,8 @@ class RBPF:
                 self._warmed(int(full[:took].sum()))
             if bank is not None and not bank.active:
                 self._maybe_start_bank()      # as after the block's last sample
+            if self._held_long():
+                self.restart_filters()
         return took
 
     def _until_bank_check(self, full: np.ndarray) -> int:
@@ -684,8 +709,9 @@ class RBPF:
         self._start_filters()
 
     def restart_filters(self) -> None:
-        """After a long gap in the data: every Kalman filter restarts from its own prior;
-        the parameter particles and their weights are kept."""
+        """After a long gap in the data (or, in fast mode, a hold of
+        :data:`PRIOR_SAMPLES`): every Kalman filter restarts from its own prior; the
+        parameter particles and their weights are kept."""
         logw = self.logw
         self._start_filters()
         self.logw = logw
@@ -734,6 +760,8 @@ class RBPF:
                 setattr(self, k, type(getattr(self, k))(sc[k]))
         if sc.get("_at_prior") is None:     # a checkpoint from before the field existed
             self._at_prior = False
+        if sc.get("_last_data_step") is None:   # ... or before this one: no hold counted
+            self._last_data_step = self.n_steps
         bank = {k: arrays.pop(k) for k in list(arrays) if k.startswith("bank_")}
         gains = {k[6:]: arrays.pop(k) for k in list(arrays) if k.startswith("gains_")}
         for k, v in arrays.items():
