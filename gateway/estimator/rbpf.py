@@ -19,8 +19,11 @@ filter for fixed theta. See docs/estimator.md.
 Modes (``config.mode``): ``"exact"`` runs that recursion throughout; ``"fast"`` runs it
 for ``fast_warmup_s`` after every filter start, then gives every particle the steady
 state of its recursion (a DARE solve per move or speed band,
-:mod:`gateway.estimator.steady`) and steps only the means; :meth:`RBPF.run` then takes
-runs of uneventful samples in one compiled call.
+:mod:`gateway.estimator.steady`) and steps only the means; a sample without every sensor
+(a hold, a lost frame) hands it back to the exact recursion, from the steady covariance,
+for ``fast_warmup_s`` of full data, and a hold of :data:`PRIOR_SAMPLES` restarts the
+filters at their prior; :meth:`RBPF.run` takes runs of uneventful samples in one
+compiled call.
 
 Speed: the model is evaluated at a reference speed v_ref; when a sample's speed differs
 from v_ref by more than ``speed_tol`` (relative), v_ref becomes that speed and Phi, Qd
