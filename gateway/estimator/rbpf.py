@@ -513,8 +513,7 @@ class RBPF:
             elif bool(smp.update) and fin.any():
                 k = j
                 break
-            elif self._steady or (full[j - 1] if j else
-                                  self._data_since_start != self._bank_from):
+            elif self._steady or (full[j - 1] if j else self._last_data_step == self.n_steps):
                 k = j         # a hold starts: the per-sample path leaves the steady gains,
                 break         # stops the fault bank and restarts its clock
         warming = self._fast and not self._steady
