@@ -328,13 +328,14 @@ def test_a_hold_raises_no_false_detection(mode: str) -> None:
     cloud stood 7.6 sigma off at 13 s. Now the bank stops at the hold and starts again
     after ``start_after_s`` of data; the estimate stays within 3 sigma."""
     from firmware_sim.studies.calibration import record
-    from firmware_sim.studies.detection import holds, run
+    from firmware_sim.studies.detection import run
+    from firmware_sim.studies.holds import holds
     from gateway.model.vehicle import THETA_SEC42
 
     truth = THETA_SEC42.as_array()
     Y = record(truth, 5, 7003, 13.0)
     est, found, filt = run(Y, service_filter(5, 3, 1000, mode), every=500,
-                           held=holds(len(Y), [8.0], 3.0))
+                           held=holds(len(Y), FS_HZ, [8.0], 3.0))
     assert found == []
     assert filt.n_detections == 0
     mean, std = np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])

@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection import FS_HZ, V_MPS, holds, run, service_filter
+from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
+from firmware_sim.studies.holds import holds
 from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
@@ -97,7 +98,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest)
     filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
                           start_ramp_s=start_ramp_s)
-    held = None if hold is None else holds(len(Y), [hold[0]], hold[1])
+    held = None if hold is None else holds(len(Y), FS_HZ, [hold[0]], hold[1])
     est, found, _ = run(Y, filt, held=held)
     out = []
     for t in at_s:

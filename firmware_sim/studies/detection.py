@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from firmware_sim.studies.holds import holds, periodic_holds
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
 from gateway.config import EstimatorConfig
@@ -104,23 +105,6 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
 
 
-def holds(n: int, starts_s: Sequence[float], length_s: float) -> np.ndarray:
-    """Which of ``n`` samples at :data:`FS_HZ` (sample k at (k + 1) / FS_HZ s) the gate
-    holds (a curve, its straight hold): ``length_s`` from each of ``starts_s``. (n,) bool."""
-    t_s = np.arange(1, n + 1) / FS_HZ
-    held = np.zeros(n, dtype=bool)
-    for t0 in starts_s:
-        held |= (t_s >= t0) & (t_s < t0 + length_s)
-    return held
-
-
-def periodic_holds(n: int, every_s: float | None, length_s: float) -> np.ndarray | None:
-    """:func:`holds` at every multiple of ``every_s`` (None: no holds)."""
-    if every_s is None:
-        return None
-    return holds(n, np.arange(every_s, n / FS_HZ, every_s).tolist(), length_s)
-
-
 def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None = None
         ) -> tuple[list[Any], list[tuple[float, str, float, float]], Filter]:
     """Estimates every ``every`` samples and the bank's detections (decision time,
@@ -183,7 +167,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s),
-                           held=holds(len(Y), hold_at_s, hold_s) if hold_at_s else None)
+                           held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None)
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -234,7 +218,7 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s),
-                           held=periodic_holds(len(Y), hold_every_s, hold_s))
+                           held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
             "noise_scale": noise_scale, **_noise_columns(filt),
