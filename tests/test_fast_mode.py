@@ -378,7 +378,7 @@ def test_blocks_of_samples_equal_stepping_one_by_one(mode: str, n_sensors: int,
     S = _samples(Y)
     for k in (2600, 6600):        # the second stops the running fault bank, which restarts
         S[k] = Sample(S[k].t_s, np.where(np.arange(n_sensors) == 1, np.nan, Y[k]), V_MPS)
-    for k in range(3000, 3050):   # a hold: the bank waits start_after_s of data again
+    for k in range(3000, 3050):   # a hold: the bank waits after_hold_s of data again
         S[k] = Sample(S[k].t_s, Y[k], V_MPS, False)
     for k in range(7000, 7500):
         S[k] = Sample(S[k].t_s, Y[k], V_MPS * 1.01)

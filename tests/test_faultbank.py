@@ -326,18 +326,21 @@ def test_a_hold_raises_no_false_detection(mode: str) -> None:
     predicted through it with steady gains, scored the returning data too sharply and
     located a Csy drop to 0.37 x nominal 1.25 s after it, in both modes, and fast mode's
     cloud stood 7.6 sigma off at 13 s. Now the bank stops at the hold and starts again
-    after ``start_after_s`` of data; the estimate stays within 3 sigma."""
+    after ``after_hold_s`` of data (here at 12 s; its CUSUMs watch from 13 s); to 16 s
+    nothing is detected and the estimate stays within 3 sigma."""
     from firmware_sim.studies.calibration import record
     from firmware_sim.studies.detection import run
     from firmware_sim.studies.holds import holds
     from gateway.model.vehicle import THETA_SEC42
 
     truth = THETA_SEC42.as_array()
-    Y = record(truth, 5, 7003, 13.0)
+    Y = record(truth, 5, 7003, 16.0)
     est, found, filt = run(Y, service_filter(5, 3, 1000, mode), every=500,
                            held=holds(len(Y), FS_HZ, [8.0], 3.0))
     assert found == []
     assert filt.n_detections == 0
+    bank = filt.inner._bank if isinstance(filt, NoiseCheckedStart) else filt._bank
+    assert bank is not None and bank.active
     mean, std = np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])
-    assert est[-1].t_s == 13.0
+    assert est[-1].t_s == 16.0
     assert np.all(np.abs(mean - truth) <= 3 * std), (mean - truth) / std

@@ -130,7 +130,7 @@ class RBPF:
         self._w_cache = np.zeros(m)
         self._data_since_start = 0
         self._bank_from = 0     # _data_since_start at the last sample without data: the
-        self._bank_check_at = 0  # fault bank waits start_after_s of data from there
+        self._bank_check_at = 0  # fault bank waits after_hold_s of data from there
         self._block_len = BLOCK_MIN
         self._v0_key: tuple[object, object] | None = None
         self._v0 = np.zeros((0, NZ))
@@ -413,8 +413,8 @@ class RBPF:
     def _bank_step(self, y: np.ndarray, use: np.ndarray, t_s: float) -> Detection | None:
         """The fault bank's view of one sample (after the particles took it): scored
         when every sensor is used. A sample with only some sensors stops it; so does one
-        with none, and the bank then waits ``start_after_s`` of data again before it
-        starts: its steady-gain filters would score the data after a hold (a curve, a
+        with none, and the bank then waits ``after_hold_s`` of data before it starts
+        again: its steady-gain filters would score the data after a hold (a curve, a
         dropout) too sharply, and the cloud's states must first converge again
         (docs/estimator.md "Samples without every sensor")."""
         bank = self._bank
@@ -432,8 +432,7 @@ class RBPF:
         every 0.1 s of samples."""
         bank, cfg = self._bank, self.config
         assert bank is not None and cfg.faults is not None
-        if self.n_steps < self._bank_check_at or \
-                self._data_since_start - self._bank_from < cfg.faults.start_after_s * cfg.fs_hz:
+        if self.n_steps < self._bank_check_at or self._bank_wait(cfg.faults) > 0:
             return
         self._bank_check_at = self.n_steps + max(1, int(round(0.1 * cfg.fs_hz)))
         mean, std, xs, _, _ = _posterior(self._weights(), self.z, self._X)
@@ -588,6 +587,14 @@ class RBPF:
                 self.restart_filters()
         return took
 
+    def _bank_wait(self, faults: FaultBankConfig) -> float:
+        """Samples with data still needed before the fault bank may start:
+        ``start_after_s`` of data since the filter start and ``after_hold_s`` since the
+        last hold (<= 0: none)."""
+        fs = self.config.fs_hz
+        return max(faults.start_after_s * fs - self._data_since_start,
+                   faults.after_hold_s * fs - (self._data_since_start - self._bank_from))
+
     def _until_bank_check(self, full: np.ndarray) -> int:
         """Samples of a block with ``full`` (k,) up to and including the one after which
         the per-sample path would next check whether to start the fault bank
@@ -595,7 +602,7 @@ class RBPF:
         passed); k if none."""
         cfg = self.config
         assert cfg.faults is not None
-        need = cfg.faults.start_after_s * cfg.fs_hz - (self._data_since_start - self._bank_from)
+        need = self._bank_wait(cfg.faults)
         due = (np.arange(len(full)) >= self._bank_check_at - self.n_steps - 1) \
             & (np.cumsum(full) >= need)
         return int(np.argmax(due)) + 1 if due.any() else len(full)
