@@ -230,6 +230,14 @@ def measured(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
     return add_sensor_noise(select(run.outputs, sensors), sensors, rng, noise_var)
 
 
+def lose_values(y: np.ndarray, loss: float, rng: np.random.Generator) -> np.ndarray:
+    """``y`` (T, ny) with each value lost (NaN: a lost CAN frame, the front end's partial
+    sample) independently with probability ``loss``; a copy."""
+    out = np.array(y, dtype=float)
+    out[rng.random(out.shape) < loss] = np.nan
+    return out
+
+
 def select(outputs: np.ndarray, sensors: tuple[str, ...]) -> np.ndarray:
     """Columns of a (T, 5) SENSORS_5 array for a sensor subset, shape (T, len(sensors))."""
     return outputs[:, [SENSORS_5.index(s) for s in sensors]]

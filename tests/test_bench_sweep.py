@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numba
+import numpy as np
 import pytest
 
 from firmware_sim.studies.sweep import bench_data, filter_config
@@ -28,7 +29,8 @@ OLD_KEYS = ("exact_rtf_whole_run", "exact_rtf_steady", "naive_rtf", "ratio_whole
             "ratio_steady", "steady_gflops", "ceiling_rtf", "numba_threads",
             "available_cores")
 NEW_KEYS = ("fast_rtf_whole_run", "fast_rtf_steady", "ratio_fast_naive_whole_run",
-            "ratio_fast_naive_steady", "threads")
+            "ratio_fast_naive_steady", "threads", "fast_rtf_whole_run_lossy",
+            "fast_rtf_steady_lossy", "frame_loss")
 RECORD_RTFS = ("fast_rtf_whole_run", "fast_rtf_steady", "exact_rtf_whole_run",
                "exact_rtf_steady", "naive_rtf")
 
@@ -72,6 +74,7 @@ def test_estimator_keeps_its_keys_and_adds_fast_mode(capsys):
     assert est["ratio_fast_naive_whole_run"] == pytest.approx(
         est["fast_rtf_whole_run"] / est["naive_rtf"])
     assert est["fast_warmup_s"] == 0.01
+    assert est["frame_loss"] == 1e-3 and positive(est["fast_rtf_steady_lossy"])
     assert est["threading_layer"] == threading_layer() != "unset"   # what the kernels ran on
     # the counts come from a filter in each mode over the same data with the same seed
     assert resamples("fast", 32, 0.01) != resamples("exact", 32, 0.01), "pick another SEED"
@@ -164,3 +167,19 @@ def test_plot_without_the_sweep_is_refused(tmp_path: Path, capsys):
     assert code == 2
     assert line == "error: expected --what sweep with --plot, got --what estimator"
     assert not png.exists()
+
+
+def test_lost_frames_are_the_share_asked_for_and_nothing_else_changes():
+    """The lossy bench run's data: each sensor value lost (NaN) with the given
+    probability, independently, the rest untouched."""
+    from firmware_sim.studies.sweep import bench_data, lose_frames
+
+    data = bench_data(2.0, SEED)
+    lossy = lose_frames(data, 0.05, SEED)
+    lost = np.isnan(lossy.y)
+    assert not np.isnan(data.y).any()
+    assert 0.04 < lost.mean() < 0.06                        # 6000 values: +-0.008 is 3 sd
+    assert lost.all(axis=1).sum() < 5 and 220 < lost.any(axis=1).sum() < 350   # 0.25, 285
+    assert np.array_equal(lossy.y[~lost], data.y[~lost])
+    assert all(np.array_equal(s.values, y, equal_nan=True)
+               for s, y in zip(lossy.samples, lossy.y, strict=True))

@@ -197,6 +197,39 @@ def test_every_particle_converges_over_the_prior_box() -> None:
     assert np.median(it) <= 22                       # doubling: 2**20 samples and more
 
 
+class ExactTwin:
+    """The exact recursion of the particles at ``theta`` from the steady P+ and the states
+    of a filter in its steady phase: where fast mode hands a sample without every sensor."""
+
+    def __init__(self, filt: RBPF, theta: np.ndarray, n_sensors: int) -> None:
+        self.bank = Bank(theta, n_sensors)
+        self.X, self.P = filt._X.copy(), to_lanes(self.bank.posterior())
+
+    def step(self, y: np.ndarray) -> np.ndarray:
+        """One sample ``y`` (ny,), NaN where missing; each particle's log-likelihood (m,)."""
+        b, width = self.bank, n_chunks(self.bank.m) * LANES
+        use = np.isfinite(y)
+        ll, nis, dead = np.zeros(width), np.zeros(width), np.zeros(width, dtype=bool)
+        kf_step(self.X, self.P, b.phi, b.qd, b.H, b.r, np.where(use, y, 0.0), use,
+                np.eye(NZ), ll, nis, dead)
+        return ll[:b.m]
+
+
+def _steady_at(theta: np.ndarray, S: list[Sample], n_sensors: int, warmup_s: float
+               ) -> RBPF:
+    """A fast filter of 16 particles at ``theta`` (no resampling, monitor or bank) after the
+    first 2000 samples of ``S``, in its steady phase."""
+    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=16, sensors=n_sensors, mode="fast",
+                     resample=False, monitor=None, faults=None, fast_warmup_s=warmup_s,
+                     seed=0)
+    filt = RBPF(cfg)
+    filt.set_particles(theta)
+    for smp in S[:2000]:
+        filt.advance(smp)
+    assert filt._steady
+    return filt
+
+
 @pytest.mark.parametrize("n_sensors", [3, 5])
 def test_a_sample_without_every_sensor_hands_over_to_the_exact_recursion(
         n_sensors: int) -> None:
@@ -204,40 +237,96 @@ def test_a_sample_without_every_sensor_hands_over_to_the_exact_recursion(
     after it, one sensor out for 20 ms: from the hold's first sample on, every particle's
     filter is the exact recursion started from its steady P+, sample for sample
     (log-likelihoods within 1e-6, issue 14's bound; measured 2e-9 / 1.0e-8 with 3 / 5
-    sensors), until ``fast_warmup_s`` of full data has passed after the outage; then the
-    steady gains again. Measured before 2026-11-27, when steady gains predicted through
-    the hold and a partial outage used the steady P- for up to 20 ms: 4-90 nats between
-    particles 10 % apart after a 10-20 ms hold (docs/estimator.md "Samples without every
-    sensor")."""
+    sensors), until ``fast_warmup_s`` of full data has passed after the outage (P is
+    not back at the steady state before, after the hold); then the steady gains again.
+    Measured before 2026-11-27, when steady gains predicted through the hold and a
+    partial outage used the steady P- for up to 20 ms: 4-90 nats between particles 10 %
+    apart after a 10-20 ms hold (docs/estimator.md "Samples without every sensor")."""
     rng = np.random.default_rng(3)
     theta = _theta_box(rng, 16, 0.7, 1.4)
     Y = _outputs(3300, n_sensors, seed=12)
     Y[2000:2300] = np.nan
     Y[2450:2470, 1] = np.nan
     S = _samples(Y)
-    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=16, sensors=n_sensors, mode="fast",
-                     resample=False, monitor=None, faults=None, fast_warmup_s=0.3, seed=0)
-    filt = RBPF(cfg)
-    filt.set_particles(theta)
-    for smp in S[:2000]:
-        filt.advance(smp)
-    assert filt._steady
-    bank = Bank(theta, n_sensors)
-    nch = n_chunks(bank.m)
-    Xe, Pe = filt._X.copy(), to_lanes(bank.posterior())
+    filt = _steady_at(theta, S, n_sensors, 0.3)
+    twin = ExactTwin(filt, theta, n_sensors)
     worst = 0.0
     for k in range(2000, 2769):
         filt.advance(S[k])
         assert not filt._steady, k
-        use = np.isfinite(Y[k])
-        lle = np.zeros(nch * LANES)
-        nis, dead = np.zeros(nch * LANES), np.zeros(nch * LANES, dtype=bool)
-        kf_step(Xe, Pe, bank.phi, bank.qd, bank.H, bank.r, np.where(use, Y[k], 0.0), use,
-                np.eye(NZ), lle, nis, dead)
-        worst = max(worst, float(np.abs(filt._ll[:bank.m] - lle[:bank.m]).max()))
+        worst = max(worst, float(np.abs(filt._ll[:16] - twin.step(Y[k])).max()))
     assert worst < 1e-6, worst
     filt.advance(S[2769])
     assert filt._steady
+
+
+@pytest.mark.parametrize("n_sensors", [3, 5])
+def test_a_lost_frame_rejoins_the_steady_gains_once_p_is_back(n_sensors: int) -> None:
+    """A lost frame (one sensor out for 1 ms, later another for 20 ms) hands the steady
+    phase to the exact recursion, which rejoins the steady gains as soon as its P+ is
+    back within REJOIN_TOL of the steady P+ (until 2026-11-27 a lossy bus kept it exact
+    for ``fast_warmup_s`` after every lost frame): here within 100 samples of the 1 ms
+    outage and 500 of the 20 ms one (measured 16-32 and 35-291), and every particle's
+    log-likelihood over the 3.5 s from the first outage stays within 0.05 nats of the
+    exact recursion from the steady P+ run throughout (measured 0.002-0.005)."""
+    from gateway.estimator.rejoin import REJOIN_TOL, RejoinTarget
+
+    rng = np.random.default_rng(3)
+    theta = _theta_box(rng, 16, 0.9, 1.1)
+    Y = _outputs(5500, n_sensors, seed=12)
+    Y[2000, 1] = np.nan
+    Y[3000:3020, n_sensors - 1] = np.nan
+    S = _samples(Y)
+    filt = _steady_at(theta, S, n_sensors, 2.0)
+    twin = ExactTwin(filt, theta, n_sensors)
+    b = twin.bank
+    target = RejoinTarget(b.posterior(), b.v0, b.H, np.ones(b.m, dtype=bool))
+    assert target.distance(twin.P) < 1e-9
+    diff = np.zeros(b.m)
+    exact_for = {2000: 0, 3000: 0}
+    for k in range(2000, len(S)):
+        filt.advance(S[k])
+        diff += filt._ll[:b.m] - twin.step(Y[k])
+        if not filt._steady:
+            exact_for[2000 if k < 3000 else 3000] += 1
+    assert 0 < exact_for[2000] <= 100 and 20 < exact_for[3000] <= 500, exact_for
+    assert filt._steady
+    assert np.abs(diff).max() < 0.05, diff
+    assert target.distance(twin.P) < REJOIN_TOL
+
+
+def test_moves_on_the_way_back_solve_the_gains_of_the_moved_particles() -> None:
+    """Resample-moves while the exact recursion is on its way back from a lost frame
+    (forced here for 5 samples: a resampling threshold of 0.999) solve the moved
+    particles' gains from their ancestors', as in the steady phase, and each moved
+    particle keeps its ancestor's deviation from the steady P+ under its own: the
+    recursion rejoins the steady gains as soon as without the moves (measured: 83
+    samples after the outage either way; keeping the ancestor's P took over 900), and
+    then every particle's gains are the cold DARE solution at its theta (to 1e-9)."""
+    Y = _outputs(1400, 3, seed=8)
+    Y[1000:1040, 1] = np.nan
+    S = _samples(Y)
+    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=32, sensors=3, seed=3, mode="fast",
+                     fast_warmup_s=0.5, monitor=None, faults=None)
+    filt = RBPF(cfg)
+    filt.run(S[:1000])
+    assert filt._steady
+    usual = filt.config
+    often = RBPFConfig(**{**usual.__dict__, "ess_threshold": 0.999})
+    moves, back = 0, None
+    for k in range(1000, len(S)):
+        n = filt.n_resamples
+        filt.config = often if 1040 <= k < 1045 else usual
+        filt.step(S[k])
+        moves += int(filt._rejoin and filt.n_resamples > n)
+        if back is None and k >= 1040 and filt._steady:
+            back = k
+    assert moves == 5 and back is not None and back - 1040 < 200, (moves, back)
+    bank = Bank(filt.theta, 3)
+    m = bank.m
+    for a, b in ((filt._gains.g, bank.gains.g), (filt._gains.p_pred, bank.gains.p_pred)):
+        a, b = from_lanes(a, m, (-1,)), from_lanes(b, m, (-1,))
+        assert (np.abs(a - b).max(1) / np.abs(b).max(1)).max() < 1e-9
 
 
 def _samples(Y: np.ndarray) -> list[Sample]:
@@ -285,17 +374,20 @@ def test_a_long_hold_restarts_the_filters_at_their_prior() -> None:
 @pytest.mark.parametrize("start_ramp_s", [0.0, 0.2])
 def test_checkpoint_and_restore_are_bit_exact_in_fast_mode(start_ramp_s: float) -> None:
     """Checkpoints in the exact warm-up (with ``start_ramp_s`` = 0.2: inside the start's
-    likelihood ramp), in the steady phase and in the exact hand-over of a sensor outage
-    (sensor 1 missing for 0.1 s) continue bit for bit."""
+    likelihood ramp), in the steady phase, in the exact hand-over of a sensor outage
+    (sensor 1 missing for 0.1 s) and on the way back after a lost frame (before it
+    rejoins the steady gains) continue bit for bit."""
     Y = _outputs(2600, 3, seed=4)
     Y[1600:1700, 1] = np.nan
+    Y[2000, 2] = np.nan
     S = _samples(Y)
     cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=64, sensors=3, seed=1, mode="fast",
                      fast_warmup_s=0.3, start_ramp_s=start_ramp_s)
     filt = RBPF(cfg)
-    for cut in (150, 1500, 1650):
+    for cut in (150, 1500, 1650, 2010):
         filt = RBPF(cfg)
         filt.run(S[:cut])
+        assert filt._rejoin == (cut in (1650, 2010)) and filt._steady == (cut == 1500)
         twin = RBPF.restore(filt.checkpoint())
         a = filt.run(S[cut:])
         b = twin.run(S[cut:])

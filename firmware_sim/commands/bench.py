@@ -7,8 +7,10 @@ picks them (default: :data:`DEFAULT_BENCHES`).
 ``estimator``: the RBPF (m particles, 3 sensors, 1 kHz, paper Sec. 4.2 data), exact mode
 then fast mode over the same data with the same seed, each over a whole run (including the
 convergence phase with frequent resampling) and over its steady state, against the naive
-baseline (:mod:`firmware_sim.studies.naive`) measured on a short slice. Real-time factor =
-simulated seconds / wall seconds.
+baseline (:mod:`firmware_sim.studies.naive`) measured on a short slice; then fast mode
+again on the same data with lost frames (``--frame-loss``, each sensor value lost
+independently: a lossy bus, where every lost frame hands fast mode to the exact
+recursion for a while). Real-time factor = simulated seconds / wall seconds.
 
 ``sweep``: the cost curve (:mod:`firmware_sim.studies.sweep`): the same three at each m
 of ``--sweep-particles``, a list of records, and with ``--plot`` a PNG (RTF against m,
@@ -61,6 +63,7 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
         SENSORS,
         bench_data,
         filter_config,
+        lose_frames,
         naive_rtf,
         time_filter,
     )
@@ -73,6 +76,8 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
     fast_cfg = filter_config("fast", m, args.seed, args.ar_paper, args.fast_warmup_s)
     fast = time_filter(data, fast_cfg, args.steady_after_s)
     naive = naive_rtf(data, m, args.naive_steps, args.ar_paper)
+    lossy = time_filter(lose_frames(data, args.frame_loss, args.seed), fast_cfg,
+                        args.steady_after_s)
     return {"particles": m, "sensors": SENSORS, "rate_hz": FS_HZ, "seconds": args.seconds,
             "threads": exact.threads, "numba_threads": exact.threads, **_cores(),
             "threading_layer": threading_layer(),
@@ -84,6 +89,9 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
             "fast_warmup_s": fast_cfg.fast_warmup_s,
             "fast_resamples_convergence": fast.resamples_convergence,
             "fast_resamples_steady": fast.resamples_steady,
+            "frame_loss": args.frame_loss,
+            "fast_rtf_whole_run_lossy": lossy.rtf_whole_run,
+            "fast_rtf_steady_lossy": lossy.rtf_steady,
             "naive_rtf": naive, "naive_steps_measured": args.naive_steps,
             "ratio_whole_run": exact.rtf_whole_run / naive,
             "ratio_steady": exact.rtf_steady / naive,
@@ -157,6 +165,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="numba threads (all cores)")
     p.add_argument("--fast-warmup-s", type=real(0.0, 3600.0), default=None,
                    help="fast mode's exact warm-up in s (the estimator's default)")
+    p.add_argument("--frame-loss", type=real(0.0, 1.0), default=1e-3,
+                   help="share of sensor values lost in the lossy fast run (0.001)")
     p.add_argument("--sweep-particles", type=particle_counts,
                    default=SWEEP_PARTICLES, metavar="M,M,...",
                    help="sweep: particle counts (" + ",".join(map(str, SWEEP_PARTICLES)) + ")")

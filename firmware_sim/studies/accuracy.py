@@ -14,7 +14,8 @@ Produces the tables of docs/estimator.md (JSON lines on stdout, one per run):
   the step case over ``--step-seeds``; then summary rows (paired gap
   |mean_fast - mean_exact| / sigma_exact, coverage, detection delay) per mode;
   ``--reseeded`` adds an exact run with another filter seed, whose gap to the exact run
-  is the Monte Carlo noise floor of the paired gap.
+  is the Monte Carlo noise floor of the paired gap; ``--frame-loss P`` loses each sensor
+  value of the paired data with probability P (a lossy bus; generator seed 2000 + seed).
 
 ``--mode`` picks the estimator mode(s): ``exact``, ``fast`` or ``both`` (default: both for
 ``compare``, exact, the reference, for the others). Every row records its mode. Each row
@@ -36,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.truth import measured
+from firmware_sim.truth import lose_values, measured
 from gateway.estimator.monitor import MonitorConfig, cusum
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.model.vehicle import (
@@ -155,7 +156,7 @@ def _gap(a: dict[str, Any], ref: dict[str, Any], key: str) -> list[float]:
 
 def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, seconds: float,
             modes: Sequence[str] = ("fast", "exact"), reseeded: bool = False,
-            **extra: Any) -> Iterator[dict[str, Any]]:
+            frame_loss: float = 0.0, **extra: Any) -> Iterator[dict[str, Any]]:
     """Paired runs of the paper scenario, one row per (seed, sensors, mode), a ``pair`` row
     per (seed, sensors) when both modes run, then ``compare_summary`` rows.
 
@@ -163,8 +164,9 @@ def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, second
     parameter is |mean_fast - mean_exact| / sigma_exact at a checkpoint (3, 5 and 20 s,
     those within ``seconds``; the end when none is). ``reseeded`` adds the Monte Carlo
     noise floor: an exact run with filter seed ``seed + RESEED_OFFSET`` (role
-    ``exact_reseeded``) and its gap to the exact run. ``extra``: further
-    :class:`RBPFConfig` fields of every run.
+    ``exact_reseeded``) and its gap to the exact run. ``frame_loss``: the share of sensor
+    values lost (NaN) in the data. ``extra``: further :class:`RBPFConfig` fields of every
+    run.
     """
     at_s = [t for t in COMPARE_AT_S if t <= seconds] or [seconds]
     truth = THETA_SEC42.as_array()
@@ -174,6 +176,8 @@ def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, second
     for seed in seeds:
         for ns in sensors:
             Y = make_data(np.repeat(truth[None], n, 0), ns, seed)
+            if frame_loss > 0:
+                Y = lose_values(Y, frame_loss, np.random.default_rng(2000 + seed))
             by_mode = {}
             roles = [(m, m, seed) for m in modes]
             if reseeded:
@@ -184,7 +188,7 @@ def compare(seeds: Sequence[int], sensors: Sequence[int], particles: int, second
                 row = {"what": "compare", "mode": mode, "role": role, "seed": seed,
                        "filter_seed": fseed, "sensors": ns,
                        "particles": particles, "seconds": seconds,
-                       "moves_drop_null": cfg.moves_drop_null,
+                       "moves_drop_null": cfg.moves_drop_null, "frame_loss": frame_loss,
                        **summarise(est, truth, at_s), "resamples": filt.n_resamples,
                        "detections": filt.n_detections, "wall_s": wall}
                 runs.append(row)
@@ -296,6 +300,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--reseeded", action="store_true",
                     help="compare: add an exact run with another filter seed (the Monte "
                          "Carlo noise floor of the gap)")
+    ap.add_argument("--frame-loss", type=float, default=0.0,
+                    help="compare: share of sensor values lost in the data (0)")
     ap.add_argument("--floor-reference", choices=("nominal", "value"),
                     default=RBPFConfig.floor_reference)
     ap.add_argument("--ess-threshold", type=float, default=RBPFConfig.ess_threshold,
@@ -315,7 +321,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if is_cmp:
         opt = {"moves_drop_null": args.moves_drop_null}
         for row in compare(seeds, args.sensors, args.particles, seconds, modes,
-                           args.reseeded, **opt):
+                           args.reseeded, args.frame_loss, **opt):
             _print(row)
         steps = [step_run(seed, 3, args.step_seconds, fault_at,
                           _base(args.particles, 3, seed, mode, **opt))

@@ -26,7 +26,7 @@ import numba
 import numpy as np
 
 from firmware_sim.studies.naive import naive_steps
-from firmware_sim.truth import measured
+from firmware_sim.truth import lose_values, measured
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.model.vehicle import (
     THETA_SEC42,
@@ -101,6 +101,15 @@ def bench_data(seconds: float, seed: int) -> BenchData:
                  sensor_set(SENSORS), np.random.default_rng(seed))
     samples = tuple(Sample(t_s=k / FS_HZ, values=y[k], speed_mps=V_MPS) for k in range(n))
     return BenchData(fs_hz=FS_HZ, speed_mps=V_MPS, y=y, samples=samples)
+
+
+def lose_frames(data: BenchData, loss: float, seed: int) -> BenchData:
+    """``data`` with each sensor value lost (NaN: a lost CAN frame, the front end's
+    partial sample) independently with probability ``loss``, drawn from ``seed``."""
+    y = lose_values(data.y, loss, np.random.default_rng(seed))
+    samples = tuple(Sample(t_s=k / data.fs_hz, values=y[k], speed_mps=data.speed_mps)
+                    for k in range(len(y)))
+    return BenchData(fs_hz=data.fs_hz, speed_mps=data.speed_mps, y=y, samples=samples)
 
 
 def time_filter(data: BenchData, config: RBPFConfig, steady_after_s: float) -> ModeTiming:

@@ -1,8 +1,8 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (850): the filter's step, its block path, resample-move and checkpoint
-share its state; its kernels (exact, steady), config, particles, monitor and fault bank
-are already separate modules.
+Over 400 lines (960): the filter's step, its block path, resample-move and checkpoint
+share its state; its kernels (exact, steady), config, particles, monitor, fault bank and
+the rejoin test after a lost frame are already separate modules.
 
 Each of m particles carries theta = (Csy, Csay, lambda) [and optionally Ar] and its own
 exact Kalman filter of the vehicle model (16 filter states, :mod:`gateway.model.coordinates`).
@@ -21,7 +21,9 @@ for ``fast_warmup_s`` after every filter start, then gives every particle the st
 state of its recursion (a DARE solve per move or speed band,
 :mod:`gateway.estimator.steady`) and steps only the means; a sample without every sensor
 (a hold, a lost frame) hands it back to the exact recursion, from the steady covariance,
-for ``fast_warmup_s`` of full data, and a hold of :data:`PRIOR_SAMPLES` restarts the
+for ``fast_warmup_s`` of full data (a lost frame inside it leaves at least ``SETTLE_S``
+to go) or, after a lost frame, until P is back at the steady state
+(:mod:`gateway.estimator.rejoin`), and a hold of :data:`PRIOR_SAMPLES` restarts the
 filters at their prior; :meth:`RBPF.run` takes runs of uneventful samples in one
 compiled call.
 
@@ -53,6 +55,7 @@ from gateway.estimator.kalman import from_lanes, kf_block, kf_step, n_chunks, to
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
 from gateway.estimator.rbpf_config import AR_NAME, RBPFConfig
+from gateway.estimator.rejoin import REJOIN_EVERY, SETTLE_S, RejoinTarget
 from gateway.estimator.steady import (
     NullVectors,
     SteadyGains,
@@ -101,7 +104,7 @@ _GAINS = ("p_pred", "g", "s", "c0", "iters")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
             "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
-            "_ramp_from", "_bank_from", "_last_data_step")
+            "_ramp_from", "_bank_from", "_last_data_step", "_rejoin")
 
 
 class RBPF:
@@ -116,6 +119,8 @@ class RBPF:
         self._fast = config.mode == "fast"
         self._steady = False
         self._warm_left = 0
+        self._rejoin = False    # fast mode: the exact recursion after a lost frame, which
+        self._target: RejoinTarget | None = None    # rejoins the gains at this steady P+
         self._ramp_from = 0
         self._ramp_n = int(round(config.start_ramp_s * config.fs_hz))
         self._at_prior = False
@@ -218,6 +223,7 @@ class RBPF:
             self._p0_set = True
             self._at_prior, self._prior_v = True, self._v_ref
         # a new speed band solves cold: its filter coordinates are not the last band's
+        self._end_rejoin()
         self._recompute()
 
     def _own_prior(self) -> np.ndarray:
@@ -235,40 +241,72 @@ class RBPF:
 
     def _recompute(self, start: np.ndarray | None = None) -> None:
         """Phi and Qd at every particle's theta; in fast mode's steady phase its gains too,
-        by Newton steps from ``start`` (lane layout P-, a nearby solution) where given."""
+        by Newton steps from ``start`` (lane layout P-, a nearby solution) where given, and
+        after a lost frame the gains and the steady P+ the exact recursion rejoins."""
         self._disc.compute(self.theta[:, :3], self._q(), self._phi, self._qd)
         if self._steady:
             self._recompute_gains(start)
+            self._P = self._gains.p_pred
+        elif self._rejoin:
+            self._recompute_gains(start)
+            self._target = self._rejoin_target(self._steady_post())
         elif self._fast and self._warm_left <= 0:
             self._enter_steady()
 
     def _enter_steady(self) -> None:
         """Fast mode, after the exact warm-up: every filter takes its steady-state gains."""
+        self._end_rejoin()
         self._steady = True
         self._recompute_gains()
+        self._P = self._gains.p_pred
 
-    def _leave_steady(self) -> None:
+    def _end_rejoin(self) -> None:
+        """The exact recursion no longer rejoins the steady gains by distance (a hold, a
+        new speed band, a restart): the time rule alone applies."""
+        self._rejoin = False
+        self._target = None
+
+    def _steady_post(self) -> np.ndarray:
+        """Every particle's steady P+ (N, 16, 16) from the current gains."""
+        return steady_posterior(self._gains, self._particle_null(), self._H, self._r,
+                                self.config.n_particles)
+
+    def _rejoin_target(self, p_post: np.ndarray) -> RejoinTarget:
+        alive = np.isfinite(self._gains.c0[:self.config.n_particles])
+        return RejoinTarget(p_post, self._particle_null(), self._H, alive)
+
+    def _leave_steady(self, partial: bool) -> None:
         """Fast mode, a sample without every sensor: the steady gains of the full sensor
         set no longer fit (the exact P widens while a sensor is missing, and the steady
         innovation variances would score the returning data too sharply: tens of nats
         between particles 10 % apart after 10-20 ms, measured), so the exact recursion
         takes over from the steady covariance, exactly, until ``fast_warmup_s`` of full
-        data has passed (docs/estimator.md "Samples without every sensor")."""
-        v0 = self._particle_null()
-        P = steady_posterior(self._gains, v0, self._H, self._r, self.config.n_particles)
+        data has passed; after a ``partial`` sample (some sensors: a lost frame) also as
+        soon as P is back at that steady state (:mod:`gateway.estimator.rejoin`; the gains
+        are kept for it, and a move solves them again from its ancestors', as in the
+        steady phase) (docs/estimator.md "Samples without every sensor")."""
+        P = self._steady_post()
         self._P = to_lanes(P.reshape(len(P), -1))
         self._steady = False
         self._warm_left = self._warm_steps()
+        self._rejoin = partial
+        self._target = self._rejoin_target(P) if partial else None
 
     def _warm_up(self, use: np.ndarray) -> None:
         """Fast mode's exact warm-up counts samples with every sensor: samples without
         data converge no state, and steady gains handed over before the states have seen
         ``fast_warmup_s`` of data score their start-up transient with the converged
         innovation variances, which favours the wrong particles (docs/estimator.md,
-        "Start of every filter"). A sample with only some sensors starts it again."""
+        "Start of every filter"). A sample with only some sensors (a lost frame) leaves
+        at least ``SETTLE_S`` of full data to go, for its own perturbation of P to decay
+        (restarting the whole warm-up kept a bus that loses a frame every few hundred
+        samples in the exact recursion for good); one with none ends a rejoin after a
+        lost frame (the hold widens P far more)."""
         if bool(use.any()) and not bool(use.all()):
             self._at_prior = False
-            self._warm_left = self._warm_steps()
+            self._warm_left = max(self._warm_left, self._settle_steps)
+        elif not use.any():
+            self._end_rejoin()
         self._warmed(int(use.all()))
 
     def _warmed(self, n_full: int) -> None:
@@ -279,9 +317,20 @@ class RBPF:
             self._warm_left -= n_full
         if self._warm_left <= 0:
             self._enter_steady()
+        elif n_full and self._rejoin and self._warm_left % REJOIN_EVERY == 0:
+            assert self._target is not None
+            if self._target.reached(self._P):
+                self._end_rejoin()
+                self._steady = True
+                self._P = self._gains.p_pred
 
     def _warm_steps(self) -> int:
         return int(round(self.config.fast_warmup_s * self.config.fs_hz)) if self._fast else 0
+
+    @property
+    def _settle_steps(self) -> int:
+        """Full samples the exact recursion runs at least after a lost frame."""
+        return min(self._warm_steps(), int(round(SETTLE_S * self.config.fs_hz)))
 
     @property
     def _in_ramp(self) -> bool:
@@ -311,7 +360,6 @@ class RBPF:
         cold or from ``start`` (:func:`gateway.estimator.steady.steady_gains`)."""
         v0 = to_lanes(self._particle_null())
         steady_gains(self._phi, self._qd, v0, self._H, self._r, self._gains, start=start)
-        self._P = self._gains.p_pred
 
     # ------------------------------------------------------------------ step
     def step(self, sample: Sample) -> Estimate:
@@ -365,7 +413,7 @@ class RBPF:
             kf_steady(self._X, self._phi, self._H, y, use, self._gains, self._ll, self._nis,
                       self._dead)
         else:
-            self._leave_steady()
+            self._leave_steady(partial=bool(use.any()))
             kf_step(self._X, self._P, self._phi, self._qd, self._H, self._r, y, use,
                     self._P0, self._ll, self._nis, self._dead)
         used = bool(use.any())
@@ -516,8 +564,11 @@ class RBPF:
                 k = j         # a hold starts: the per-sample path leaves the steady gains,
                 break         # stops the fault bank and restarts its clock
         warming = self._fast and not self._steady
-        if warming:                       # the block ends where the warm-up does
-            k = min(k, int(np.searchsorted(np.cumsum(full[:k]), self._warm_left)) + 1)
+        if warming:                       # the block ends where the warm-up does, and
+            left = self._warm_left        # at the next rejoin check after a lost frame
+            if self._rejoin:
+                left = min(left, self._warm_left % REJOIN_EVERY or REJOIN_EVERY)
+            k = min(k, int(np.searchsorted(np.cumsum(full[:k]), left)) + 1)
         if self._fast:                    # ... and where a hold grows long (only a block's
             held = self.n_steps - self._last_data_step     # leading samples can be held)
             left = max(0, PRIOR_SAMPLES - held)
@@ -691,15 +742,28 @@ class RBPF:
             self._X = np.zeros_like(self._X)
             self._P = self._own_prior()
             self._steady = False
+            self._end_rejoin()
             self._warm_left = self._warm_steps()
             self._ramp_from = self._data_since_start
             self._at_prior, self._prior_v = True, self._v_ref
         elif not self._steady:
             self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
         # in the steady phase a moved particle's DARE starts from its ancestor's solution
-        # (a jitter away); a fault's re-draw spans a range, so its particles start cold
-        warm = self._steady and fault is None and not alarm
+        # (a jitter away); a fault's re-draw spans a range, so its particles start cold,
+        # and the exact recursion after a lost frame then keeps the time rule alone
+        if fault is not None:
+            self._end_rejoin()
+        warm = (self._steady or self._rejoin) and fault is None and not alarm
+        was = self._target
         self._recompute(self._gains.take(anc) if warm else None)
+        if self._rejoin:
+            # on the way back from a lost frame a moved particle keeps its ancestor's
+            # deviation from the steady P+ and takes its own theta's steady P+ under it, as
+            # the steady phase gives it its own steady gains (the exact P would otherwise
+            # carry the ancestor's theta into the slow mode for seconds, measured)
+            assert was is not None and self._target is not None
+            dev = from_lanes(self._P, cfg.n_particles, (NZ, NZ)) - was.p_post[anc]
+            self._P = to_lanes((dev + self._target.p_post).reshape(cfg.n_particles, -1))
         if self._bank is not None:
             if alarm:
                 self._bank.stop()
@@ -744,7 +808,7 @@ class RBPF:
         # flash every checkpoint_interval_s
         skip = {"_phi", "_qd"} | ({"_P"} if self._steady else set())
         arrays = {k: getattr(self, k) for k in _ARRAYS if hasattr(self, k) and k not in skip}
-        if self._steady:
+        if self._steady or self._rejoin:
             # the gains depend on the history (each move's DARE starts from its ancestor's)
             arrays.update({f"gains_{k}": getattr(self._gains, k) for k in _GAINS})
         if self._bank is not None:
@@ -782,6 +846,12 @@ class RBPF:
             self._P = self._gains.p_pred      # as _recompute_gains leaves it
         elif self._steady:
             self._recompute_gains()   # a checkpoint from before the gains were kept
+            self._P = self._gains.p_pred
+        if self._rejoin and set(gains) == set(_GAINS):
+            self._gains = SteadyGains(**gains)
+            self._target = self._rejoin_target(self._steady_post())
+        elif self._rejoin:
+            self._end_rejoin()
         if self._bank is not None:
             self._bank.load(bank)
         return self
