@@ -166,7 +166,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fast-warmup-s", type=real(0.0, 3600.0), default=None,
                    help="fast mode's exact warm-up in s (the estimator's default)")
     p.add_argument("--frame-loss", type=real(0.0, 1.0), default=1e-3,
-                   help="share of sensor values lost in the lossy fast run (0.001)")
+                   help="estimator: share of sensor values lost in the lossy fast run "
+                        "(0.001)")
+    p.add_argument("--bus-loss", type=real(0.0, 1.0), default=0.0,
+                   help="latency: share of CAN frames the sender drops (0)")
     p.add_argument("--sweep-particles", type=particle_counts,
                    default=SWEEP_PARTICLES, metavar="M,M,...",
                    help="sweep: particle counts (" + ",".join(map(str, SWEEP_PARTICLES)) + ")")

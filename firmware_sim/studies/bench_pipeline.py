@@ -5,7 +5,9 @@ timed in process CPU time, against the 8,000 frames/s of a full 1 Mbit/s bus.
 ``latency``: the live service on an in-process bus; for every estimate frame it sends,
 the time from the newest sensor frame it includes (its wire timestamp) to the moment
 the estimate frame goes out; and whether the worker kept up (samples dropped at the
-full queue, samples not yet stepped when the traffic ended, the worker's RTF).
+full queue, samples not yet stepped when the traffic ended, the worker's RTF). With
+``--bus-loss P`` the sender drops each frame with probability P (a lossy bus: every
+lost sensor frame is a grid sample with that sensor missing).
 """
 
 from __future__ import annotations
@@ -75,8 +77,19 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
             time.sleep(0.1)
         sim = Simulation(get_scenario("nominal"), SimConfig(duration_s=args.seconds + 5,
                                                             seed=args.seed))
+        loss_rng = np.random.default_rng(args.seed + 1)
+        lost = [0]
+
+        def lossy(messages: Any) -> Any:
+            """The simulator's frames, each lost with probability ``--bus-loss``."""
+            for msg in messages:
+                if args.bus_loss > 0 and loss_rng.random() < args.bus_loss:
+                    lost[0] += 1
+                    continue
+                yield msg
+
         with open_node_bus(f"virtual:{channel}") as tx:
-            send_live(sim.messages(), tx)
+            send_live(lossy(sim.messages()), tx)
         stats = service.pipeline.stats() if service.pipeline else None
         service.flags.stop = True
         runner.join(timeout=20)
@@ -86,7 +99,8 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
         "samples_not_stepped_at_end": stats.samples_out - 1 - stats.last_seq_done,
         "worker_rtf": stats.rtf, "worker_restarts": stats.worker_restarts}
     return {"particles": args.particles, "mode": cfg.estimator.mode,
-            "seconds": args.seconds, "estimate_frames": len(lags),
+            "seconds": args.seconds, "bus_loss": args.bus_loss,
+            "frames_lost": lost[0], "estimate_frames": len(lags),
             "latency_median_ms": float(np.median(steady)),
             "latency_p95_ms": float(np.percentile(steady, 95)),
             "latency_max_ms": float(np.max(steady)), **behind}
