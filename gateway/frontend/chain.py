@@ -29,7 +29,8 @@ def resampler_config(cfg: Config) -> ResamplerConfig:
     def hz(x: float) -> float | None:
         return x if x > 0 else None
 
-    return ResamplerConfig(fs_hz=r.fs_hz, deadline_s=r.deadline_s, interpolation=r.interpolation,
+    return ResamplerConfig(fs_hz=r.fs_hz, deadline_s=r.deadline_s, reorder_s=r.reorder_s,
+                           interpolation=r.interpolation,
                            lowpass_hz=(hz(r.lowpass_wheelset_acc_hz), hz(r.lowpass_wheelset_acc_hz),
                                        hz(r.lowpass_bogie_acc_hz), hz(r.lowpass_gyro_hz),
                                        hz(r.lowpass_body_acc_hz)))

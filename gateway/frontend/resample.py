@@ -27,7 +27,10 @@ Candidate split: the statistics and gap-reason records.
   node has all its samples up to the interpolator's last tap (``k0 + 16`` for
   ``"sinc"``, 16 node periods of latency; ``k0 + 1`` otherwise), or when the receive time
   (the newest frame's timestamp or ``pop_ready(now_s)``) passes the point by
-  ``deadline_s``; then the late node's entries are MISSING. A frame of a sample the
+  ``deadline_s``; then the late node's entries are MISSING. A hole in a node's
+  sequence is not waited for once the node's samples ``reorder_s`` later have come (its
+  frames come in order, bar a swap; a lost frame held the grid for the whole deadline).
+  A frame of a sample the
   grid has already passed is dropped and counted by reason (:data:`LATE_REASONS`);
   every grid point with a MISSING entry is counted per message by reason
   (:data:`GAP_REASONS`). Finality is decided inside :meth:`Resampler.push`, so the
@@ -124,12 +127,14 @@ MAX_WALK_S = 60.0
 JUMP_KEEP_S = 1.0
 """After a jump the grid restarts this long before the receive time (the rings hold
 less than that), s."""
-LATE_REASONS: tuple[str, ...] = ("deadline", "not_waited", "clock")
+LATE_REASONS: tuple[str, ...] = ("deadline", "not_waited", "clock", "overtaken")
 """Why a frame came after the grid had passed its sample: ``deadline`` the receive time
 (newest frame or ``pop_ready``) had passed the sample by more than ``deadline_s``, so
 the grid stopped waiting for it; ``not_waited`` a message the grid does not wait for (not in
 ``required_messages``) was slower than the others; ``clock`` the clock model placed it
-behind the grid (after a node restart or a model correction)."""
+behind the grid (after a node restart or a model correction); ``overtaken`` its node's
+frames of samples ``reorder_s`` or more later had come first, so the grid had taken it
+for lost."""
 GAP_REASONS: tuple[str, ...] = ("lost", "late", "outlier", "not_seen", "excluded")
 """Why a grid point has a message's entries MISSING: ``lost`` no frame of the sample
 arrived (bus loss, rejected by validation, node silent); ``late`` it arrived after the
@@ -161,6 +166,7 @@ class ResamplerConfig:
     required_messages: tuple[str, ...] = LATERAL_MESSAGES
     clock: ClockParams = field(default_factory=ClockParams)
     interpolation: str = "sinc"
+    reorder_s: float = 0.02
 
     def __post_init__(self) -> None:
         if self.interpolation not in INTERPOLATIONS:
@@ -178,9 +184,10 @@ class ResamplerConfig:
             raise ConfigError(f"expected lowpass_hz for exactly {list(SENSORS_5)}, got "
                               f"{sorted(lp)}")
         object.__setattr__(self, "lowpass_hz", dict(lp))
-        if not (self.deadline_s > 0 and self.speed_timeout_s > 0):
-            raise ConfigError(f"expected deadline_s > 0 and speed_timeout_s > 0, got "
-                              f"{self.deadline_s} s, {self.speed_timeout_s} s")
+        if not (self.deadline_s > 0 and self.speed_timeout_s > 0 and self.reorder_s > 0):
+            raise ConfigError(f"expected deadline_s, speed_timeout_s and reorder_s > 0, got "
+                              f"{self.deadline_s} s, {self.speed_timeout_s} s, "
+                              f"{self.reorder_s} s")
         if not self.required_messages or not set(self.required_messages) <= set(
                 LATERAL_MESSAGES):
             raise ConfigError(f"expected required_messages from {LATERAL_MESSAGES}, got "
@@ -463,8 +470,9 @@ class Resampler:
         if stream.lateral and seen and self._is_late(node, k):
             waited_s = st.now_s - clock.time_s(k)
             why = ("deadline" if waited_s > self.config.deadline_s else
+                   "overtaken" if k <= self._overtaken_below(node) else
                    "clock" if node in self._required else "not_waited")
-            st.late[why] += 1
+            st.late[why] = st.late.get(why, 0) + 1
             st.counters["late_frames"] += 1
             node.late_samples += 1
             if node.drop_k[slot] != k:
@@ -505,6 +513,20 @@ class Resampler:
         if k == node.watermark + 1:
             _advance(node, k)
             self._release_ready()
+        elif node.watermark < self._overtaken_below(node):
+            # a hole reorder_s behind the node's newest sample: lost on the bus (frames
+            # of one node come in order, bar a swap), so the grid does not wait
+            # deadline_s for it (a lost frame held every estimate back by 0.2 s)
+            _advance(node, self._overtaken_below(node))
+            self._release_ready()
+
+    def _overtaken_below(self, node: NodeState) -> int:
+        """The highest sample index of ``node`` the grid no longer waits for because
+        samples ``reorder_s`` later have come (``_EMPTY`` before any)."""
+        if node.k_stored == _EMPTY:
+            return _EMPTY
+        return node.k_stored - max(1, round(self.config.reorder_s
+                                            / node.clock.period_nominal_s))
 
     def _settle_run(self, stream: _Stream, node: NodeState, close: bool = True) -> None:
         """An outlier run that never ripened: place its frames by sample index where they
