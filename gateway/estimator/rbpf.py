@@ -735,6 +735,7 @@ class RBPF:
         self.since_move = 0
         self.updated_since_move = 0
         self.n_resamples += 1
+        p_anc: np.ndarray | None = None        # the ancestors' exact P (N, 256)
         if alarm:
             # The states were estimated under the old model: restart every filter from its
             # own prior (x = 0, P = P0(theta)). Keeping x with a widened P would be
@@ -747,7 +748,8 @@ class RBPF:
             self._ramp_from = self._data_since_start
             self._at_prior, self._prior_v = True, self._v_ref
         elif not self._steady:
-            self._P = to_lanes(from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc])
+            p_anc = from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc]
+            self._P = to_lanes(p_anc)
         # in the steady phase a moved particle's DARE starts from its ancestor's solution
         # (a jitter away); a fault's re-draw spans a range, so its particles start cold,
         # and the exact recursion after a lost frame then keeps the time rule alone
@@ -761,9 +763,9 @@ class RBPF:
             # deviation from the steady P+ and takes its own theta's steady P+ under it, as
             # the steady phase gives it its own steady gains (the exact P would otherwise
             # carry the ancestor's theta into the slow mode for seconds, measured)
-            assert was is not None and self._target is not None
-            dev = from_lanes(self._P, cfg.n_particles, (NZ, NZ)) - was.p_post[anc]
-            self._P = to_lanes((dev + self._target.p_post).reshape(cfg.n_particles, -1))
+            assert was is not None and self._target is not None and p_anc is not None
+            dev = p_anc - was.p_post[anc].reshape(cfg.n_particles, -1)
+            self._P = to_lanes(dev + self._target.p_post.reshape(cfg.n_particles, -1))
         if self._bank is not None:
             if alarm:
                 self._bank.stop()

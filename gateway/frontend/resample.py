@@ -513,11 +513,11 @@ class Resampler:
         if k == node.watermark + 1:
             _advance(node, k)
             self._release_ready()
-        elif node.watermark < self._overtaken_below(node):
+        elif node.watermark < (behind := self._overtaken_below(node)):
             # a hole reorder_s behind the node's newest sample: lost on the bus (frames
             # of one node come in order, bar a swap), so the grid does not wait
             # deadline_s for it (a lost frame held every estimate back by 0.2 s)
-            _advance(node, self._overtaken_below(node))
+            _advance(node, behind)
             self._release_ready()
 
     def _overtaken_below(self, node: NodeState) -> int:
