@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from firmware_sim.output import write_log
@@ -24,9 +25,12 @@ DURATION_S = 12.0
 PARTICLES = "64"
 
 
-def _log(path: Path, *, glitch_s: float = 0.0, **sim: object) -> Path:
+def _log(path: Path, *, glitch_s: float = 0.0, loss: float = 0.0, **sim: object) -> Path:
     cfg = SimConfig(duration_s=DURATION_S, seed=1, **sim)  # type: ignore[arg-type]
     msgs = list(Simulation(get_scenario("nominal"), cfg).messages())
+    if loss:
+        keep = np.random.default_rng(7)
+        msgs = [m for m in msgs if keep.random() >= loss]
     if glitch_s:
         i0 = next(i for i, m in enumerate(msgs) if m.timestamp >= 4.0)
         for m in msgs[i0:i0 + 10]:              # about 3 ms of traffic
@@ -62,6 +66,25 @@ def test_timestamp_glitch_replay_keeps_updates_and_estimates(clean, tmp_path):
     assert fe["retimed_frames"] == 10
     for name in ("csy_ns_per_m", "csay_ns_per_m", "conicity"):
         assert _rel(rep, clean, name) < 0.01, (name, rep["estimates"], clean["estimates"])
+
+
+def test_a_lossy_bus_loses_only_its_lost_frames(clean, tmp_path):
+    """One frame in 100 dropped on the bus (about 370 frames in 12 s): each lost sensor
+    frame makes its node's entries MISSING on one or two grid points (reason ``lost``),
+    no frame is late (a hole the node has overtaken is not waited for, and no frame
+    comes after the grid took it for lost), the grid keeps at least 95 % of the clean
+    run's updates (measured 11,993 of 11,998: before the yaw low-pass bridged short
+    gyro gaps, its restarts were taken for curves and 9,019 samples were gated), and the
+    estimates stay within 2 % of the clean run's (fast mode hands each partial sample
+    to the exact recursion and comes back)."""
+    rep = _replay(_log(tmp_path / "lossy.log", loss=0.01))
+    fe, ref = rep["diagnostics"]["front_end"], clean["diagnostics"]["front_end"]
+    lost = {msg: gaps["lost"] for msg, gaps in fe["gaps"].items()}
+    assert sum(fe["late"].values()) == 0
+    assert all(60 <= n <= 2 * 160 for n in lost.values()), lost  # ~120 frames each
+    assert fe["gating"]["updated"] >= 0.95 * ref["gating"]["updated"]
+    for name in ("csy_ns_per_m", "csay_ns_per_m", "conicity"):
+        assert _rel(rep, clean, name) < 0.02, (name, rep["estimates"], clean["estimates"])
 
 
 def test_second_sender_is_counted_excluded_and_harmless(tmp_path):

@@ -377,6 +377,28 @@ def test_lowpass_step_is_sosfilt_with_a_steady_state_start():
     assert lowpass_step(lp, state, 0.7) == pytest.approx(0.7, rel=1e-12)
 
 
+def test_a_bridged_gap_keeps_the_state_and_a_longer_one_restarts():
+    """The curve detector's yaw low-pass (``bridge`` > 0): NaN out during a gap of at most
+    ``bridge`` samples, then the filter goes on from its state as if the gap samples were
+    not there (sosfilt of the series without them); one sample more restarts it at the
+    input value, as the anti-alias filters (``bridge`` 0) do at every gap."""
+    lp = design_lowpass(2, 0.5, 1000.0)
+    x = 0.01 * np.random.default_rng(1).standard_normal(600)
+    gap = np.zeros(len(x), dtype=bool)
+    gap[200:250] = True                                   # 50 samples: bridged
+    state = LowpassState()
+    y = np.array([lowpass_step(lp, state, math.nan if g else float(v), bridge=50)
+                  for v, g in zip(x, gap, strict=True)])
+    assert np.isnan(y[gap]).all() and state.z is not None
+    kept = x[~gap]
+    ref, _ = scipy.signal.sosfilt(lp.sos, kept, zi=scipy.signal.sosfilt_zi(lp.sos) * kept[0])
+    np.testing.assert_allclose(y[~gap], ref, rtol=1e-12, atol=1e-15)
+    for _ in range(51):
+        assert math.isnan(lowpass_step(lp, state, math.nan, bridge=50))
+    assert state.z is None
+    assert lowpass_step(lp, state, 0.7, bridge=50) == pytest.approx(0.7, rel=1e-10)  # zi
+
+
 def test_filters_switch_per_channel_and_match_offline_filtering():
     _, frames = traffic("dropout", 5.0)
     _, raw = run(frames, RAW)

@@ -23,7 +23,9 @@ sigma per parameter, and the alerts raised (data time, parameter, severity; ``t0
 the first estimate's data time). ``summary FILE...`` prints the table of docs/resampler.md
 ("Node timing"): mean ± standard error over seeds, truth within 2 sigma, and the paired
 difference to ``aligned``. Data seed = filter seed = the seed; the clocks' random
-draws from 10000 + seed. Not used by the service; a measuring tool.
+draws from 10000 + seed. ``--bus-loss P`` drops each frame of the log with probability P
+(draws from 20000 + seed; rows record it): a lossy bus through the whole replay path.
+Not used by the service; a measuring tool.
 """
 
 from __future__ import annotations
@@ -79,15 +81,18 @@ def _sensor_noise(interpolation: str) -> str:
 
 
 def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: float,
-             particles: int, scenario: str, workdir: Path) -> dict[str, Any]:
+             particles: int, scenario: str, workdir: Path, bus_loss: float = 0.0
+             ) -> dict[str, Any]:
     """One replay: the final estimate against the truth."""
     sim = Simulation(get_scenario(scenario), SimConfig(duration_s=seconds, seed=seed))
     truth = sim.scenario.theta(np.array([0.0]), seconds)[0]
     truth_end = sim.scenario.theta(np.array([seconds]), seconds)[0]
     set_clocks(sim, case, np.random.default_rng(10_000 + seed))
-    log_path = workdir / f"{scenario}-{seed}-{case}.log"
+    log_path = workdir / f"{scenario}-{seed}-{case}-{bus_loss:g}.log"
     if not log_path.exists():
-        write_log(list(sim.messages()), log_path)
+        keep = np.random.default_rng(20_000 + seed)
+        write_log([m for m in sim.messages() if not (bus_loss > 0 and keep.random() < bus_loss)],
+                  log_path)
     base = Config()
     cfg = dataclasses.replace(
         base, resampler=dataclasses.replace(base.resampler, interpolation=interpolation),
@@ -97,7 +102,7 @@ def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: fl
     result = replay(log_path, cfg)
     est = result.estimates[-1]
     return {"seed": seed, "case": case, "interpolation": interpolation, "sensors": sensors,
-            "particles": particles, "scenario": scenario, "t_s": est.t_s,
+            "particles": particles, "scenario": scenario, "bus_loss": bus_loss, "t_s": est.t_s,
             "rel": [est.mean[i] / truth[i] - 1 for i in range(3)],
             "z": [(est.mean[i] - truth[i]) / est.std[i] for i in range(3)],
             "sigma_rel": [est.std[i] / est.mean[i] for i in range(3)],
@@ -170,13 +175,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--particles", type=int, default=1000)
     p.add_argument("--scenario", default="nominal")
+    p.add_argument("--bus-loss", type=float, default=0.0,
+                   help="share of the log's frames dropped (0)")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="railgw-timing-") as tmp:
         for seed in args.seeds:
             for case in args.cases.split(","):
                 for interpolation in args.interpolation.split(","):
                     row = run_case(seed, case, interpolation, args.sensors, args.seconds,
-                                   args.particles, args.scenario, Path(tmp))
+                                   args.particles, args.scenario, Path(tmp), args.bus_loss)
                     print(json.dumps(row), flush=True)
     return 0
 

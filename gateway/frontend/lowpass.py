@@ -12,7 +12,10 @@ into calls. ``tests/test_resample.py`` checks it against ``sosfilt``.
 Gap rule: a non-finite input (missing or NotAvailable) outputs NaN and discards the
 state. The first finite sample after it restarts the filter in its steady state for
 that value (``sosfilt_zi(sos) * x``), so the output resumes at the input value with
-no start-up transient. A stream's very first sample is handled the same way.
+no start-up transient. A stream's very first sample is handled the same way. With
+``bridge`` > 0 (the curve detector's yaw rate) a gap of at most that many samples keeps
+the state, and the filter goes on from it as if the gap were not there: a restart puts
+the sample's noise into the output as a step, which at a slow cut-off lasts seconds.
 """
 
 from __future__ import annotations
@@ -63,13 +66,19 @@ class LowpassState:
     next finite sample."""
 
     z: list[float] | None = None
+    gap: int = 0
+    """Non-finite samples in a row so far."""
 
 
-def lowpass_step(lp: Lowpass, state: LowpassState, x: float) -> float:
-    """Filter one sample; NaN in gives NaN out and a restart at the next finite sample."""
+def lowpass_step(lp: Lowpass, state: LowpassState, x: float, bridge: int = 0) -> float:
+    """Filter one sample; NaN in gives NaN out and, after more than ``bridge`` of them in
+    a row, a restart at the next finite sample."""
     if not math.isfinite(x):
-        state.z = None
+        state.gap += 1
+        if state.gap > bridge:
+            state.z = None
         return math.nan
+    state.gap = 0
     z = state.z
     if z is None:
         z = [v * x for pair in lp.zi_unit for v in pair]
