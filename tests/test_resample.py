@@ -290,6 +290,32 @@ def test_a_frame_overtaken_by_more_than_reorder_s_is_late_overtaken():
     assert kept.stats().late_frames == 0 and kept.stats().reordered_frames == 1
 
 
+def test_a_lost_sample_inside_the_sinc_window_is_bridged_not_linear():
+    """Ten BDN frames lost, 100 ms apart: on the 32 grid points around each whose
+    fractional-delay window holds the hole (but not their own neighbours k0, k0 + 1),
+    the window takes the mean of the hole's neighbours: their rms difference from the
+    clean log's values is under half of what linear interpolation makes there (measured
+    0.29: 4.2e-3 against 1.5e-2 m/s^2).
+    Until 2026-11-27 those points fell back to linear, and on a bus losing 1 frame in 100
+    lambda came out 1.08 +- 0.18 % low against the same log without loss (30 fresh
+    seeds, exact mode, drifting clocks, 5 sensors; with the bridge 0.00 +- 0.13 %)."""
+    _, frames = traffic("nominal", 3.0)
+    bdn = [i for i, f in enumerate(frames) if f.message == "BDN_Lat" and f.timestamp_s > 1.0]
+    lost = set(bdn[::100][:10])
+    lossy = [f for i, f in enumerate(frames) if i not in lost]
+    _, clean = run(frames)
+    _, out = run(lossy)
+    _, lin = run(lossy, dataclasses.replace(RAW, interpolation="linear"))
+    c, g, li = arrays(clean), arrays(out), arrays(lin)
+    assert np.array_equal(c["t"], g["t"]) and np.array_equal(g["t"], li["t"])
+    bd = SENSORS_5.index("acc_bd")
+    near = np.isfinite(g["v"][:, bd]) & (np.abs(g["v"][:, bd] - c["v"][:, bd]) > 0)
+    assert 200 <= near.sum() <= 10 * 32, near.sum()
+    rms = float(np.sqrt(np.mean((g["v"][near, bd] - c["v"][near, bd]) ** 2)))
+    rms_lin = float(np.sqrt(np.mean((li["v"][near, bd] - c["v"][near, bd]) ** 2)))
+    assert rms < 0.5 * rms_lin, (rms, rms_lin)
+
+
 def test_duplicate_frames_are_counted_and_ignored():
     _, frames = traffic("nominal", 4.0)
     twice = [f for f in frames[:3000] for _ in range(2)]

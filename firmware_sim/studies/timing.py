@@ -81,8 +81,8 @@ def _sensor_noise(interpolation: str) -> str:
 
 
 def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: float,
-             particles: int, scenario: str, workdir: Path, bus_loss: float = 0.0
-             ) -> dict[str, Any]:
+             particles: int, scenario: str, workdir: Path, bus_loss: float = 0.0,
+             mode: str = "fast") -> dict[str, Any]:
     """One replay: the final estimate against the truth."""
     sim = Simulation(get_scenario(scenario), SimConfig(duration_s=seconds, seed=seed))
     truth = sim.scenario.theta(np.array([0.0]), seconds)[0]
@@ -97,12 +97,14 @@ def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: fl
     cfg = dataclasses.replace(
         base, resampler=dataclasses.replace(base.resampler, interpolation=interpolation),
         estimator=dataclasses.replace(base.estimator, particles=particles, sensors=sensors,
+                                      mode=mode,
                                       seed=seed, sensor_noise=_sensor_noise(interpolation)))
     wall0 = time.monotonic()
     result = replay(log_path, cfg)
     est = result.estimates[-1]
     return {"seed": seed, "case": case, "interpolation": interpolation, "sensors": sensors,
-            "particles": particles, "scenario": scenario, "bus_loss": bus_loss, "t_s": est.t_s,
+            "particles": particles, "scenario": scenario, "bus_loss": bus_loss, "mode": mode,
+            "t_s": est.t_s,
             "rel": [est.mean[i] / truth[i] - 1 for i in range(3)],
             "z": [(est.mean[i] - truth[i]) / est.std[i] for i in range(3)],
             "sigma_rel": [est.std[i] / est.mean[i] for i in range(3)],
@@ -177,13 +179,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--scenario", default="nominal")
     p.add_argument("--bus-loss", type=float, default=0.0,
                    help="share of the log's frames dropped (0)")
+    p.add_argument("--mode", choices=("fast", "exact"), default="fast",
+                   help="the estimator's mode (fast)")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="railgw-timing-") as tmp:
         for seed in args.seeds:
             for case in args.cases.split(","):
                 for interpolation in args.interpolation.split(","):
                     row = run_case(seed, case, interpolation, args.sensors, args.seconds,
-                                   args.particles, args.scenario, Path(tmp), args.bus_loss)
+                                   args.particles, args.scenario, Path(tmp), args.bus_loss,
+                                   args.mode)
                     print(json.dumps(row), flush=True)
     return 0
 

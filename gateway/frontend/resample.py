@@ -783,14 +783,24 @@ class Resampler:
         st.next_j = j + 1
 
     def _band_limited(self, message: str, k0: int, f: float) -> np.ndarray | None:
-        """The node's values at ``k0 + f`` by the fractional delay, shape (ncols,); None
-        when a tap's sample is absent, suspect or not finite (then linear)."""
+        """The node's values at ``k0 + f`` by the fractional delay, shape (ncols,). A tap
+        whose sample is absent, suspect or not finite, alone between two usable ones,
+        takes their mean; None when any other is (then linear). Falling back to linear
+        for all 32 points around each lost frame biased lambda low on a lossy bus (-0.9 %
+        with 1 frame in 100 lost, drifting clocks, 5 sensors, measured 2026-11-27)."""
         tk = self._taps_k[message]
         ks = fracdelay.OFFSETS + k0
         slots = ks & (len(tk) - 1)
-        if not (tk[slots] == ks).all():
+        present = tk[slots] == ks
+        if present.all():
+            return fracdelay.taps(f) @ self._taps_v[message][slots]
+        miss = np.flatnonzero(~present)
+        if miss[0] == 0 or miss[-1] == len(ks) - 1 \
+                or not (present[miss - 1] & present[miss + 1]).all():
             return None
-        return fracdelay.taps(f) @ self._taps_v[message][slots]
+        values = self._taps_v[message][slots]
+        values[miss] = 0.5 * (values[miss - 1] + values[miss + 1])
+        return fracdelay.taps(f) @ values
 
     def _speed(self, t: float) -> float:
         """Speed at t: interpolated between VEH samples, else held up to the timeout."""
