@@ -17,8 +17,9 @@ particle's largest element, over the particles whose steady filter is alive.
 Measured before the rule existed (16 particles at theta 0.9-1.1 x the paper's, the exact
 recursion for 2 s against rejoining at a distance of :data:`REJOIN_TOL`, the
 log-likelihood over the 4 s after the outage): one sensor out for 1 ms rejoins after
-15-31 samples, for 20 ms after 28-92, with every particle's log-likelihood within
-0.014 nats of the exact recursion's (docs/estimator.md "Samples without every sensor").
+15-32 samples, for 20 ms after 28-291 (the 3-sensor set's yaw rate is the slow one),
+with every particle's log-likelihood within 0.014 nats of the exact recursion's
+(docs/estimator.md "Lost frames").
 No I/O.
 """
 
