@@ -2,19 +2,33 @@
 
 Log formats are python-can's, chosen by the file suffix (candump ``.log``, ``.asc``,
 ``.blf``, ...). Live sending paces frames by their timestamps on a monotonic clock.
+:func:`drop_frames` makes the way there lossy.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import can
+import numpy as np
 
 from gateway.errors import InputError
 
 LOG_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc", ".mf4")
+
+
+def drop_frames(messages: Iterable[can.Message], loss: float, rng: np.random.Generator,
+                dropped: list[can.Message] | None = None) -> Iterator[can.Message]:
+    """``messages`` as a lossy bus delivers them: each lost independently with probability
+    ``loss`` (drawn from ``rng``, one draw per frame), appended to ``dropped`` if given."""
+    for msg in messages:
+        if loss > 0 and rng.random() < loss:
+            if dropped is not None:
+                dropped.append(msg)
+            continue
+        yield msg
 
 
 def write_log(messages: Iterable[can.Message], path: str | Path) -> int:

@@ -172,10 +172,10 @@ def test_plot_without_the_sweep_is_refused(tmp_path: Path, capsys):
 def test_lost_frames_are_the_share_asked_for_and_nothing_else_changes():
     """The lossy bench run's data: each sensor value lost (NaN) with the given
     probability, independently, the rest untouched."""
-    from firmware_sim.studies.sweep import bench_data, lose_frames
+    from firmware_sim.studies.sweep import bench_data, lose_sensor_values
 
     data = bench_data(2.0, SEED)
-    lossy = lose_frames(data, 0.05, SEED)
+    lossy = lose_sensor_values(data, 0.05, SEED)
     lost = np.isnan(lossy.y)
     assert not np.isnan(data.y).any()
     assert 0.04 < lost.mean() < 0.06                        # 6000 values: +-0.008 is 3 sd

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_sim.output import write_log
+from firmware_sim.output import drop_frames, write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 
@@ -28,9 +28,7 @@ PARTICLES = "64"
 def _log(path: Path, *, glitch_s: float = 0.0, loss: float = 0.0, **sim: object) -> Path:
     cfg = SimConfig(duration_s=DURATION_S, seed=1, **sim)  # type: ignore[arg-type]
     msgs = list(Simulation(get_scenario("nominal"), cfg).messages())
-    if loss:
-        keep = np.random.default_rng(7)
-        msgs = [m for m in msgs if keep.random() >= loss]
+    msgs = list(drop_frames(msgs, loss, np.random.default_rng(7)))
     if glitch_s:
         i0 = next(i for i, m in enumerate(msgs) if m.timestamp >= 4.0)
         for m in msgs[i0:i0 + 10]:              # about 3 ms of traffic

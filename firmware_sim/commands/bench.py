@@ -63,7 +63,7 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
         SENSORS,
         bench_data,
         filter_config,
-        lose_frames,
+        lose_sensor_values,
         naive_rtf,
         time_filter,
     )
@@ -76,7 +76,7 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
     fast_cfg = filter_config("fast", m, args.seed, args.ar_paper, args.fast_warmup_s)
     fast = time_filter(data, fast_cfg, args.steady_after_s)
     naive = naive_rtf(data, m, args.naive_steps, args.ar_paper)
-    lossy = time_filter(lose_frames(data, args.frame_loss, args.seed), fast_cfg,
+    lossy = time_filter(lose_sensor_values(data, args.frame_loss, args.seed), fast_cfg,
                         args.steady_after_s)
     return {"particles": m, "sensors": SENSORS, "rate_hz": FS_HZ, "seconds": args.seconds,
             "threads": exact.threads, "numba_threads": exact.threads, **_cores(),

@@ -47,7 +47,7 @@ def bench_pipeline(args: argparse.Namespace) -> dict[str, Any]:
 def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
     import numpy as np
 
-    from firmware_sim.output import send_live
+    from firmware_sim.output import drop_frames, send_live
     from firmware_sim.scenarios import get_scenario
     from firmware_sim.simulation import SimConfig, Simulation
     from gateway.can.bus import open_node_bus
@@ -77,19 +77,10 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
             time.sleep(0.1)
         sim = Simulation(get_scenario("nominal"), SimConfig(duration_s=args.seconds + 5,
                                                             seed=args.seed))
-        loss_rng = np.random.default_rng(args.seed + 1)
-        lost = [0]
-
-        def lossy(messages: Any) -> Any:
-            """The simulator's frames, each lost with probability ``--bus-loss``."""
-            for msg in messages:
-                if args.bus_loss > 0 and loss_rng.random() < args.bus_loss:
-                    lost[0] += 1
-                    continue
-                yield msg
-
+        lost: list[Any] = []
         with open_node_bus(f"virtual:{channel}") as tx:
-            send_live(lossy(sim.messages()), tx)
+            send_live(drop_frames(sim.messages(), args.bus_loss,
+                                  np.random.default_rng(args.seed + 1), lost), tx)
         stats = service.pipeline.stats() if service.pipeline else None
         service.flags.stop = True
         runner.join(timeout=20)
@@ -100,7 +91,7 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
         "worker_rtf": stats.rtf, "worker_restarts": stats.worker_restarts}
     return {"particles": args.particles, "mode": cfg.estimator.mode,
             "seconds": args.seconds, "bus_loss": args.bus_loss,
-            "frames_lost": lost[0], "estimate_frames": len(lags),
+            "frames_lost": len(lost), "estimate_frames": len(lags),
             "latency_median_ms": float(np.median(steady)),
             "latency_p95_ms": float(np.percentile(steady, 95)),
             "latency_max_ms": float(np.max(steady)), **behind}

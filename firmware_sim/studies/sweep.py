@@ -103,7 +103,7 @@ def bench_data(seconds: float, seed: int) -> BenchData:
     return BenchData(fs_hz=FS_HZ, speed_mps=V_MPS, y=y, samples=samples)
 
 
-def lose_frames(data: BenchData, loss: float, seed: int) -> BenchData:
+def lose_sensor_values(data: BenchData, loss: float, seed: int) -> BenchData:
     """``data`` with each sensor value lost (NaN: a lost CAN frame, the front end's
     partial sample) independently with probability ``loss``, drawn from ``seed``."""
     y = lose_values(data.y, loss, np.random.default_rng(seed))

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.nodes import MIN_LATENCY_S, NodeClock
-from firmware_sim.output import write_log
+from firmware_sim.output import drop_frames, write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from gateway.config import INTERPOLATIONS, Config
@@ -90,8 +90,7 @@ def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: fl
     set_clocks(sim, case, np.random.default_rng(10_000 + seed))
     log_path = workdir / f"{scenario}-{seed}-{case}-{bus_loss:g}.log"
     if not log_path.exists():
-        keep = np.random.default_rng(20_000 + seed)
-        write_log([m for m in sim.messages() if not (bus_loss > 0 and keep.random() < bus_loss)],
+        write_log(drop_frames(sim.messages(), bus_loss, np.random.default_rng(20_000 + seed)),
                   log_path)
     base = Config()
     cfg = dataclasses.replace(

@@ -253,11 +253,13 @@ class RBPF:
         elif self._fast and self._warm_left <= 0:
             self._enter_steady()
 
-    def _enter_steady(self) -> None:
-        """Fast mode, after the exact warm-up: every filter takes its steady-state gains."""
+    def _enter_steady(self, solve: bool = True) -> None:
+        """Fast mode, after the exact warm-up: every filter takes its steady-state gains,
+        solved cold (``solve``) or, back from a lost frame, the ones it kept."""
         self._end_rejoin()
         self._steady = True
-        self._recompute_gains()
+        if solve:
+            self._recompute_gains()
         self._P = self._gains.p_pred
 
     def _end_rejoin(self) -> None:
@@ -320,9 +322,7 @@ class RBPF:
         elif n_full and self._rejoin and self._warm_left % REJOIN_EVERY == 0:
             assert self._target is not None
             if self._target.reached(self._P):
-                self._end_rejoin()
-                self._steady = True
-                self._P = self._gains.p_pred
+                self._enter_steady(solve=False)
 
     def _warm_steps(self) -> int:
         return int(round(self.config.fast_warmup_s * self.config.fs_hz)) if self._fast else 0
@@ -847,8 +847,7 @@ class RBPF:
             self._gains = SteadyGains(**gains)
             self._P = self._gains.p_pred      # as _recompute_gains leaves it
         elif self._steady:
-            self._recompute_gains()   # a checkpoint from before the gains were kept
-            self._P = self._gains.p_pred
+            self._enter_steady()      # a checkpoint from before the gains were kept
         if self._rejoin and set(gains) == set(_GAINS):
             self._gains = SteadyGains(**gains)
             self._target = self._rejoin_target(self._steady_post())

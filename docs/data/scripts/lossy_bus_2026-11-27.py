@@ -18,7 +18,7 @@ from gateway.records import Sample
 
 def lossy(data: BenchData, p: float, seed: int) -> BenchData:
     """``data`` with each value lost (NaN) with probability ``p`` (the code before had no
-    ``sweep.lose_frames``)."""
+    ``sweep.lose_sensor_values``)."""
     rng = np.random.default_rng(seed)
     y = data.y.copy()
     y[rng.random(y.shape) < p] = np.nan
