@@ -40,6 +40,7 @@ class ResamplerConfig:
     fs_hz: float = 1000.0
     deadline_s: float = 0.2
     reorder_s: float = 0.02
+    silent_s: float = 1.0
     lowpass_wheelset_acc_hz: float = 0.0
     lowpass_bogie_acc_hz: float = 0.0
     lowpass_gyro_hz: float = 0.0
@@ -225,6 +226,7 @@ DOMAINS: dict[tuple[str, str], Domain] = {
     ("resampler", "fs_hz"): Range(10.0, 10_000.0),
     ("resampler", "deadline_s"): Range(0.001, 10.0),
     ("resampler", "reorder_s"): Range(0.001, 10.0),
+    ("resampler", "silent_s"): Range(0.001, 60.0),
     ("resampler", "interpolation"): OneOf(INTERPOLATIONS),
     # 0 = off; else a cut-off in [0.1 Hz, fs_hz / 2) (Nyquist, checked below)
     ("resampler", "lowpass_wheelset_acc_hz"): Range(0.1, 5000.0, off=0.0, hi_open=True),

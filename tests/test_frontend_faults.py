@@ -20,9 +20,10 @@ import pytest
 
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
-from gateway.can.codec import default_codec
+from gateway.can.codec import SENSOR_SIGNALS, default_codec
 from gateway.config import Config
 from gateway.frontend.chain import FrontEnd
+from gateway.model.vehicle import sensor_set
 from gateway.records import Sample
 
 FAULT_S = 4.0
@@ -149,8 +150,12 @@ def test_a_stalled_receive_thread_resumes_at_once(stall_s):
     assert_rate(out, 0.0, range(1, 9))
     st = fe.stats()
     assert st.resyncs == 0 and st.clock_steps == 0
-    # whatever was lost is counted by reason, and is no more than the deadline's worth
-    assert st.gap_points <= 3 * 60 + 3
+    # whatever the estimator's nodes lost is counted by reason, and is no more than the
+    # deadline's worth (the wheelset node carries none of the 3-sensor estimator's
+    # sensors, so the grid does not wait for it: the stall's burst finds its points
+    # gone, 259 at 1 s, none of them used)
+    used = ("BGN_Lat", "BDN_Lat")
+    assert sum(sum(st.gaps[m].values()) for m in used) <= 2 * 60 + 2
 
 
 def test_late_frames_and_gaps_are_counted_by_reason():
@@ -179,3 +184,37 @@ def test_late_frames_and_gaps_are_counted_by_reason():
     assert all(n - 5 <= k <= n + 5 for k in gaps.values()), gaps
     assert sum(1 for s in out if not s.update) <= n + 10
     assert_rate(out, 0.0, range(1, 6), skip=(4,))
+
+
+@pytest.mark.parametrize("sensors, silent", [(3, "WSN_Lat"), (5, "WSN_Lat"), (3, "BDN_Lat")])
+def test_a_node_that_never_sends_holds_no_estimate_back(sensors, silent):
+    """The service's front end (its configuration, 3 or 5 sensors) on traffic without one
+    node, each sample measured from the newest frame's time when it comes out. With 3
+    sensors the wheelset node carries none of the estimator's sensors and is never
+    waited for; a node that does (5 sensors, or the body node) is waited for the
+    deadline until it has been silent for ``silent_s``, then not. Before 2026-11-27
+    every sample waited the deadline (0.2 s; live p95 237 ms against 47 ms)."""
+    from gateway.config import with_overrides
+
+    cfg = with_overrides(Config(), {"estimator.sensors": sensors})
+    fe = FrontEnd(cfg, default_codec())
+    sent = [m for m in traffic(3.0)
+            if m.arbitration_id != default_codec().message(silent).frame_id]
+    t_s, lag_s, values = [], [], []
+    for m in sent:
+        for s in fe.on_frame(m) + fe.on_time(m.timestamp):
+            t_s.append(s.t_s)
+            lag_s.append(m.timestamp - s.t_s)
+            values.append(s.values)
+    t, lag, v = np.array(t_s), np.array(lag_s), np.array(values)
+    r = cfg.resampler
+    waits = sensors == 5 or silent != "WSN_Lat"
+    assert np.allclose(np.diff(t), 1e-3) and t[-1] > 2.9
+    after = t > t[0] + (r.silent_s + 0.05 if waits else 0.05)
+    assert lag[after].max() < 0.016 + 0.01          # the sinc's 16 taps + 10 ms
+    if waits:
+        assert lag[t < t[0] + r.silent_s - r.deadline_s].min() > r.deadline_s - 0.01
+    # the estimator's values: NaN exactly for the silent node's sensors
+    names = sensor_set(sensors)
+    dead = [SENSOR_SIGNALS[name][0] == silent for name in names]
+    assert np.isnan(v[:, dead]).all() and np.isfinite(v[:, ~np.array(dead)]).all()

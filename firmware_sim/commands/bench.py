@@ -170,6 +170,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(0.001)")
     p.add_argument("--bus-loss", type=real(0.0, 1.0), default=0.0,
                    help="latency: share of CAN frames the sender drops (0)")
+    p.add_argument("--silent-node", action="append", default=[], metavar="MESSAGE",
+                   help="latency: a sensor node's message that is never sent (a dead node, "
+                        "or one the vehicle lacks), repeatable: WSN_Lat, BGN_Lat, BDN_Lat")
     p.add_argument("--sweep-particles", type=particle_counts,
                    default=SWEEP_PARTICLES, metavar="M,M,...",
                    help="sweep: particle counts (" + ",".join(map(str, SWEEP_PARTICLES)) + ")")
@@ -192,6 +195,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"expected particles >= 2, seconds > 0, naive steps >= 1, got "
                          f"{args.particles}, {args.seconds}, {args.naive_steps}")
     what = tuple(dict.fromkeys(args.what or DEFAULT_BENCHES))
+    if args.silent_node:
+        from gateway.frontend.resample import LATERAL_MESSAGES
+
+        if not set(args.silent_node) <= set(LATERAL_MESSAGES):
+            raise InputError(f"expected --silent-node from {list(LATERAL_MESSAGES)}, got "
+                             f"{args.silent_node}")
     if args.plot and "sweep" not in what:
         raise InputError(f"expected --what sweep with --plot, got --what {','.join(what)}")
     configure(kernel_threads(args.particles, args.threads))

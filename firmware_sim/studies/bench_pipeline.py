@@ -7,7 +7,8 @@ the time from the newest sensor frame it includes (its wire timestamp) to the mo
 the estimate frame goes out; and whether the worker kept up (samples dropped at the
 full queue, samples not yet stepped when the traffic ended, the worker's RTF). With
 ``--bus-loss P`` the sender drops each frame with probability P (a lossy bus: every
-lost sensor frame is a grid sample with that sensor missing).
+lost sensor frame is a grid sample with that sensor missing); with ``--silent-node M``
+node M sends nothing at all (a dead node, or one the vehicle is not fitted with).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
     from firmware_sim.scenarios import get_scenario
     from firmware_sim.simulation import SimConfig, Simulation
     from gateway.can.bus import open_node_bus
+    from gateway.can.codec import default_codec
     from gateway.config import Config, with_overrides
     from gateway.service.daemon import Service
 
@@ -78,9 +80,11 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
         sim = Simulation(get_scenario("nominal"), SimConfig(duration_s=args.seconds + 5,
                                                             seed=args.seed))
         lost: list[Any] = []
+        silent = {default_codec().message(m).frame_id for m in args.silent_node}
         with open_node_bus(f"virtual:{channel}") as tx:
-            send_live(drop_frames(sim.messages(), args.bus_loss,
-                                  np.random.default_rng(args.seed + 1), lost), tx)
+            sent = (m for m in sim.messages() if m.arbitration_id not in silent)
+            send_live(drop_frames(sent, args.bus_loss, np.random.default_rng(args.seed + 1),
+                                  lost), tx)
         stats = service.pipeline.stats() if service.pipeline else None
         service.flags.stop = True
         runner.join(timeout=20)
@@ -91,6 +95,7 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
         "worker_rtf": stats.rtf, "worker_restarts": stats.worker_restarts}
     return {"particles": args.particles, "mode": cfg.estimator.mode,
             "seconds": args.seconds, "bus_loss": args.bus_loss,
+            "silent_nodes": list(args.silent_node),
             "frames_lost": len(lost), "estimate_frames": len(lags),
             "latency_median_ms": float(np.median(steady)),
             "latency_p95_ms": float(np.percentile(steady, 95)),

@@ -11,26 +11,33 @@ import logging
 
 import can
 
-from gateway.can.codec import Codec
+from gateway.can.codec import SENSOR_SIGNALS, Codec
 from gateway.config import Config
 from gateway.frontend.gating import Gate, GateConfig
 from gateway.frontend.resample import LATERAL_MESSAGES, Resampler, ResamplerConfig
 from gateway.frontend.stats import FrontEndStats
 from gateway.frontend.validate import Validator
+from gateway.model.vehicle import sensor_set
 from gateway.records import GridSample, Sample
 
 log = logging.getLogger(__name__)
 
 
 def resampler_config(cfg: Config) -> ResamplerConfig:
-    """The resampler settings from the configuration (0 Hz = filter off)."""
+    """The resampler settings from the configuration (0 Hz = filter off). The grid waits
+    only for the nodes whose messages carry the estimator's sensors: with 3 sensors a
+    silent wheelset node (or a vehicle without one) held every estimate back by
+    ``deadline_s`` (measured 2026-11-27: latency p95 47 -> 237 ms)."""
     r = cfg.resampler
 
     def hz(x: float) -> float | None:
         return x if x > 0 else None
 
+    required = tuple(dict.fromkeys(SENSOR_SIGNALS[s][0]
+                                   for s in sensor_set(cfg.estimator.sensors)))
     return ResamplerConfig(fs_hz=r.fs_hz, deadline_s=r.deadline_s, reorder_s=r.reorder_s,
-                           interpolation=r.interpolation,
+                           silent_s=r.silent_s,
+                           interpolation=r.interpolation, required_messages=required,
                            lowpass_hz=(hz(r.lowpass_wheelset_acc_hz), hz(r.lowpass_wheelset_acc_hz),
                                        hz(r.lowpass_bogie_acc_hz), hz(r.lowpass_gyro_hz),
                                        hz(r.lowpass_body_acc_hz)))

@@ -30,6 +30,9 @@ Candidate split: the statistics and gap-reason records.
   ``deadline_s``; then the late node's entries are MISSING. A hole in a node's
   sequence is not waited for once the node's samples ``reorder_s`` later have come (its
   frames come in order, bar a swap; a lost frame held the grid for the whole deadline).
+  A required node whose newest sample (or the grid's start, for a node never seen) is
+  ``silent_s`` behind another node's newest is silent: not waited for until it sends
+  again (a dead node held every estimate back by the deadline).
   A frame of a sample the
   grid has already passed is dropped and counted by reason (:data:`LATE_REASONS`);
   every grid point with a MISSING entry is counted per message by reason
@@ -173,6 +176,7 @@ class ResamplerConfig:
     clock: ClockParams = field(default_factory=ClockParams)
     interpolation: str = "sinc"
     reorder_s: float = 0.02
+    silent_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.interpolation not in INTERPOLATIONS:
@@ -190,10 +194,11 @@ class ResamplerConfig:
             raise ConfigError(f"expected lowpass_hz for exactly {list(SENSORS_5)}, got "
                               f"{sorted(lp)}")
         object.__setattr__(self, "lowpass_hz", dict(lp))
-        if not (self.deadline_s > 0 and self.speed_timeout_s > 0 and self.reorder_s > 0):
-            raise ConfigError(f"expected deadline_s, speed_timeout_s and reorder_s > 0, got "
-                              f"{self.deadline_s} s, {self.speed_timeout_s} s, "
-                              f"{self.reorder_s} s")
+        if not (self.deadline_s > 0 and self.speed_timeout_s > 0 and self.reorder_s > 0
+                and self.silent_s > 0):
+            raise ConfigError(f"expected deadline_s, speed_timeout_s, reorder_s and silent_s "
+                              f"> 0, got {self.deadline_s} s, {self.speed_timeout_s} s, "
+                              f"{self.reorder_s} s, {self.silent_s} s")
         if not self.required_messages or not set(self.required_messages) <= set(
                 LATERAL_MESSAGES):
             raise ConfigError(f"expected required_messages from {LATERAL_MESSAGES}, got "
@@ -268,6 +273,9 @@ class ResamplerState:
     """Receive times beyond a horizon, by reason (:data:`HORIZON_REASONS`)."""
     next_j: int | None = None
     """Index of the next grid point (t = j / fs_hz); None until the first lateral frame."""
+    started_s: float = math.nan
+    """Time of the first lateral sample (receive clock, s): a required node never seen
+    is silent once another node's samples are ``silent_s`` past it."""
     pending: list[GridSample] = field(default_factory=list)
 
 
@@ -478,7 +486,8 @@ class Resampler:
             waited_s = st.now_s - clock.time_s(k)
             why = ("deadline" if waited_s > self.config.deadline_s else
                    "overtaken" if k <= self._overtaken_below(node) else
-                   "clock" if node in self._required else "not_waited")
+                   "clock" if node in self._required and not self._silent(node) else
+                   "not_waited")
             st.late[why] = st.late.get(why, 0) + 1
             st.counters["late_frames"] += 1
             node.late_samples += 1
@@ -516,7 +525,8 @@ class Resampler:
             node.seen = True
             node.watermark = k - 1
             if st.next_j is None:
-                st.next_j = math.ceil(node.clock.time_s(k) * self.config.fs_hz)
+                st.started_s = node.clock.time_s(k)
+                st.next_j = math.ceil(st.started_s * self.config.fs_hz)
         if k == node.watermark + 1:
             _advance(node, k)
             self._release_ready()
@@ -692,19 +702,34 @@ class Resampler:
         up to the next sample: its later samples will never come)."""
         st = self._st
         fs = self.config.fs_hz
-        if all(node.excluded for node in self._required):
+        waited = [node for node in self._required
+                  if not (node.excluded or self._silent(node))]
+        if not waited:
             return              # nothing to wait for: the deadline moves the grid on
         while st.next_j is not None:
             t = st.next_j / fs
-            for node in self._required:
+            for node in waited:
                 c = node.clock
-                if node.excluded:
-                    continue
                 ahead = 1 if node is ending else self._ahead
                 if not node.seen or node.watermark < math.floor(
                         c.k_ref + (t - c.offset_s) / c.period_s) + ahead:
                     return
             self._finalize(st.next_j)
+
+    def _silent(self, node: NodeState) -> bool:
+        """Is this node's newest sample (never seen: the grid's start) ``silent_s`` behind
+        the newest sample of any lateral node? Measured in data, not against the receive
+        time: after a stalled receive thread every node's frames come in one burst, and
+        none of them is silent. A node whose clock model is restarting is not silent."""
+        if node.seen and (node.k_stored == _EMPTY or not node.clock.started):
+            return False
+        lateral = (self._st.nodes[s.message] for s in self._lateral)
+        newest = [n.clock.time_s(n.k_stored) for n in lateral
+                  if n.seen and n.k_stored != _EMPTY and n.clock.started]
+        if not newest:
+            return False
+        own_s = node.clock.time_s(node.k_stored) if node.seen else self._st.started_s
+        return max(newest) - own_s > self.config.silent_s
 
     def _release_until(self, t_max_s: float) -> None:
         """Finalise every grid point at or before ``t_max_s`` (deadline passed)."""
