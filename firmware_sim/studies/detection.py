@@ -43,6 +43,7 @@ from firmware_sim.studies.holds import holds, periodic_holds
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
 from gateway.config import EstimatorConfig
+from gateway.errors import InputError
 from gateway.estimator.faultbank import FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
@@ -70,6 +71,17 @@ def fault_data(parameter: int | None, factor: float, sensors: int, seed: int,
     var = {k: v * noise_scale**2 for k, v in SENSOR_NOISE_VAR.items()}
     return th, measured(th, np.full(n, V_MPS), FS_HZ, sensor_set(sensors),
                         np.random.default_rng(DATA_SEED_OFFSET + seed), noise_var=var)
+
+
+def without(Y: np.ndarray, sensors: int, dead: Sequence[str]) -> np.ndarray:
+    """``Y`` (T, ny) with the ``dead`` sensors' values NaN throughout (a dead node, or
+    one the vehicle lacks), as the front end hands them on."""
+    names = sensor_set(sensors)
+    if not set(dead) <= set(names):
+        raise InputError(f"expected dead sensors from {list(names)}, got {list(dead)}")
+    Y = Y.copy()
+    Y[:, [names.index(d) for d in dead]] = np.nan
+    return Y
 
 
 Filter = RBPF | NoiseCheckedStart
@@ -161,8 +173,10 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
               locate_min_s: float | None = None, locate_max_s: float | None = None,
-              hold_at_s: Sequence[float] = (), hold_s: float = 3.0) -> dict[str, Any]:
+              hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
+              dead: Sequence[str] = ()) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
+    Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
@@ -186,6 +200,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
             "hold_at_s": list(hold_at_s) or None, "hold_s": hold_s if hold_at_s else None,
             "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
+            "dead": list(dead) or None,
             "confirmed_s": round(right[0][3] - fault_at_s, 3) if right else None,
             "detect_s": round(right[0][0] - fault_at_s, 3) if right else None,
             "located_rel": round(right[0][2] / factor, 3) if right else None,
@@ -212,8 +227,9 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
                 noise_scale: float = 1.0, sensor_noise: str = "measured",
                 moves_drop_null: bool | None = None, locate_min_s: float | None = None,
                 locate_max_s: float | None = None, hold_every_s: float | None = None,
-                hold_s: float = 3.0) -> dict[str, Any]:
+                hold_s: float = 3.0, dead: Sequence[str] = ()) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
+    Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
@@ -221,6 +237,7 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
                            held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
+            "dead": list(dead) or None,
             "noise_scale": noise_scale, **_noise_columns(filt),
             "hold_every_s": hold_every_s, "hold_s": hold_s if hold_every_s else None,
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
@@ -357,6 +374,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--hold-s", type=float, default=3.0,
                     help="length of each hold, s (3: a 1 s curve and the 2 s straight hold)")
     ap.add_argument("--particles", type=int, default=1000)
+    ap.add_argument("--dead", nargs="+", default=[], metavar="SENSOR",
+                    help="sensors with no value at all (a dead node), e.g. acc_w1 acc_w2")
     ap.add_argument("--mode", choices=("fast", "exact"), default="fast")
     ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
                     default=None, help="the filter's moves_drop_null option (default: the "
@@ -393,7 +412,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     moves_drop_null=args.moves_drop_null,
                                     locate_min_s=args.locate_min_s,
                                     locate_max_s=args.locate_max_s,
-                                    hold_every_s=args.hold_every_s, hold_s=args.hold_s)]
+                                    hold_every_s=args.hold_every_s, hold_s=args.hold_s,
+                                    dead=args.dead)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
@@ -402,7 +422,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   moves_drop_null=args.moves_drop_null,
                                   locate_min_s=args.locate_min_s,
                                   locate_max_s=args.locate_max_s,
-                                  hold_at_s=args.hold_at_s, hold_s=args.hold_s)
+                                  hold_at_s=args.hold_at_s, hold_s=args.hold_s,
+                                  dead=args.dead)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

@@ -2,7 +2,7 @@
 
 :class:`NoiseCheckedStart` is an :class:`gateway.records.Estimator` around an
 :class:`gateway.estimator.rbpf.RBPF`. From the first sample with data (an update with
-every sensor's value: a gateway that boots at standstill waits for the train to move),
+a sensor's value: a gateway that boots at standstill waits for the train to move),
 for ``window_s`` it runs the filter as configured, keeps the samples, and the filter's
 checkpoint from before them. Then it measures each sensor's white-noise variance
 in the band above the vehicle's dynamics (:mod:`gateway.estimator.noisefloor`) and tests
@@ -94,8 +94,11 @@ def decide(model_var: np.ndarray, band: np.ndarray, signal: np.ndarray,
 
 
 def _usable(sample: Sample) -> bool:
-    """A sample the filter learns from: an update with every sensor's value."""
-    return bool(sample.update) and bool(np.all(np.isfinite(sample.values)))
+    """A sample the filter learns from: an update with a sensor's value. (Until
+    2026-11-27 every sensor's: with a sensor dead from boot the test never began, and
+    every estimate stayed provisional, so no alert was ever judged; now the test gives
+    up after ``GIVE_UP_WINDOWS`` windows without complete data, saying why.)"""
+    return bool(sample.update) and bool(np.any(np.isfinite(sample.values)))
 
 
 def _with_noise(blob: bytes, noise_var: tuple[float, ...]) -> bytes:
@@ -134,10 +137,22 @@ class NoiseCheckedStart:
         """True until the noise test has been made."""
         return self.result is None
 
+    def _values(self) -> np.ndarray:
+        """The kept samples' values (T, ny), a sensor the filter leaves out (dead:
+        :mod:`gateway.estimator.sensormask`) as 0.0: the test measures the sensors in
+        use, and a dead one no longer makes every sample incomplete."""
+        v = np.stack([s.values for s in self._kept])
+        v[:, self.inner.left_out] = 0.0
+        return v
+
     def _band(self) -> BandVariance | None:
-        kept = self._kept
-        return band_variance(np.stack([s.values for s in kept]), self.inner.config.fs_hz,
-                             np.array([s.update for s in kept]))
+        """The band's variance of the kept samples; NaN for a sensor left out."""
+        band = band_variance(self._values(), self.inner.config.fs_hz,
+                             np.array([s.update for s in self._kept]))
+        if band is not None:
+            out = self.inner.left_out
+            band.variance[out], band.se_rel[out] = np.nan, np.nan
+        return band
 
     def _signal(self, est: Estimate) -> np.ndarray:
         """The model's own signal in the band (ny,) at ``est``'s θ and the kept samples'
@@ -156,7 +171,7 @@ class NoiseCheckedStart:
         complete segments found, and the share of kept samples without every sensor's
         value (a late, suspect or missing node) or not updates (gated)."""
         kept = self._kept
-        ok = complete_samples(np.stack([s.values for s in kept]),
+        ok = complete_samples(self._values(),
                               np.array([s.update for s in kept]))
         found = len(segment_starts(ok, self.inner.config.fs_hz))
         return (f"too few complete segments of data: {found} of {MIN_TEST_SEGMENTS} "
@@ -170,6 +185,7 @@ class NoiseCheckedStart:
         if band is None:
             return False
         ratio = (band.variance - self._signal(est)) / self.inner.config.noise_variances
+        ratio = ratio[~self.inner.left_out]
         return bool(np.all((ratio > 1.0 / TRUST_FACTOR) & (ratio < TRUST_FACTOR)))
 
     def _test(self, est: Estimate) -> Estimate:
@@ -189,11 +205,13 @@ class NoiseCheckedStart:
                                            self._too_few()), est)
         signal = self._signal(est)
         used, replaced, se = decide(np.array(model), band.variance, signal, band.se_rel)
+        out = [name for name, o in zip(sensors, self.inner.left_out, strict=True) if o]
+        note = f"not measured: {', '.join(out)} (no values: left out)" if out else ""
         return self._finish(NoiseCheck(
             sensors, model, tuple(float(x) for x in band.variance - signal),
             tuple(float(x) for x in signal), tuple(float(x) for x in se),
             tuple(float(x) for x in used), tuple(bool(x) for x in replaced),
-            kept[-1].t_s), est)
+            kept[-1].t_s, note), est)
 
     def _finish(self, result: NoiseCheck, est: Estimate) -> Estimate:
         """End the test; where it replaced a variance, the filter again with the new

@@ -1,8 +1,9 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (960): the filter's step, its block path, resample-move and checkpoint
-share its state; its kernels (exact, steady), config, particles, monitor, fault bank and
-the rejoin test after a lost frame are already separate modules.
+Over 400 lines (1000): the filter's step, its block path, resample-move and checkpoint
+share its state; its kernels (exact, steady), config, particles, monitor, fault bank,
+the rejoin test after a lost frame and the dead-sensor rule are already separate
+modules.
 
 Each of m particles carries theta = (Csy, Csay, lambda) [and optionally Ar] and its own
 exact Kalman filter of the vehicle model (16 filter states, :mod:`gateway.model.coordinates`).
@@ -31,6 +32,9 @@ Speed: the model is evaluated at a reference speed v_ref; when a sample's speed 
 from v_ref by more than ``speed_tol`` (relative), v_ref becomes that speed and Phi, Qd
 and H are recomputed for every particle.
 
+Dead sensors: a sensor missing from half a second of samples with data is left out
+(a zero row of H) until it has been back as long (:mod:`gateway.estimator.sensormask`).
+
 The core does no I/O and reads no clock; randomness comes from the Generator given to
 :meth:`RBPF.reset` (or made from ``config.seed``). Checkpoints are bit-exact.
 """
@@ -56,6 +60,7 @@ from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
 from gateway.estimator.rbpf_config import AR_NAME, RBPFConfig
 from gateway.estimator.rejoin import REJOIN_EVERY, SETTLE_S, RejoinTarget
+from gateway.estimator.sensormask import BACK_AFTER_S, DEAD_AFTER_S, next_mask, tally
 from gateway.estimator.steady import (
     NullVectors,
     SteadyGains,
@@ -95,7 +100,8 @@ without a recursion (a standstill costs nothing): the exact prediction has forgo
 state by then (the log-likelihood of the returning data moves by at most 0.04 nats
 between particles 10 % apart, measured after 9-12 s holds; docs/estimator.md "Samples
 without every sensor")."""
-_ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state")
+_ARRAYS = ("z", "logw", "_X", "_P", "_phi", "_qd", "_P0", "monitor_state", "_left_out",
+           "_absent", "_present")
 LOCATED_FOR_S = 2.0
 """Data time (s) over which estimates carry the fault bank's latest detection
 (:class:`gateway.records.Located`); the alert policy acts on each one once."""
@@ -116,6 +122,9 @@ class RBPF:
         self.sensors = sensor_set(config.sensors)
         self.ny = len(self.sensors)
         self._r = np.ascontiguousarray(config.noise_variances)
+        self._left_out = np.zeros(self.ny, dtype=bool)    # dead sensors (sensormask)
+        self._absent = np.zeros(self.ny, dtype=np.int64)
+        self._present = np.zeros(self.ny, dtype=np.int64)
         self._fast = config.mode == "fast"
         self._steady = False
         self._warm_left = 0
@@ -202,13 +211,10 @@ class RBPF:
     def _set_speed(self, v_mps: float, restart: bool = False) -> None:
         cfg = self.config
         self._v_ref = float(v_mps)
-        self._H = np.ascontiguousarray(self.coords.output(self.sensors, v_mps))
         self._disc = DiscreteBatch(self.coords, v_mps, 1.0 / cfg.fs_hz)
         if self._fast or self._bank is not None or cfg.moves_drop_null:
             self._null = NullVectors(self.coords.terms(v_mps), cfg.nominal.as_array())
-        if self._bank is not None:
-            self._bank.set_model(self._disc, self._null, self._H, self._r,
-                                 float(track_intensity(1.0, v_mps)))
+        self._set_output()
         if restart or not self._p0_set:
             p0 = self.coords.initial_covariance(v_mps, cfg.ar_paper, 1.0 / cfg.fs_hz)
             self._P0 = np.ascontiguousarray(p0)
@@ -225,6 +231,16 @@ class RBPF:
         # a new speed band solves cold: its filter coordinates are not the last band's
         self._end_rejoin()
         self._recompute()
+
+    def _set_output(self) -> None:
+        """H at v_ref, a left-out sensor's row zero (no information), for the filters
+        and the fault bank."""
+        H = self.coords.output(self.sensors, self._v_ref)
+        H[self._left_out] = 0.0
+        self._H = np.ascontiguousarray(H)
+        if self._bank is not None:
+            self._bank.set_model(self._disc, self._null, self._H, self._r,
+                                 float(track_intensity(1.0, self._v_ref)))
 
     def _own_prior(self) -> np.ndarray:
         """Each particle's state prior, lane layout: its covariance 2**13 samples from rest.
@@ -394,8 +410,12 @@ class RBPF:
         if not np.isfinite(self._v_ref) or abs(v - self._v_ref) > self.config.speed_tol \
                 * self._v_ref:
             self._set_speed(v)
-        use = np.isfinite(y) & bool(sample.update)
-        y = np.where(use, y, 0.0)
+        finite = np.isfinite(y)
+        data = bool(sample.update) and bool((finite & ~self._left_out).any())
+        if data:
+            self._count_sensors(finite)
+        use = (finite | self._left_out) & data
+        y = np.where(finite & ~self._left_out, y, 0.0)
         self._ll[:] = 0.0
         self._nis[:] = 0.0
         self._dead[:] = False
@@ -440,7 +460,8 @@ class RBPF:
         fault = self._bank_step(y, use, float(sample.t_s)) if self._bank is not None else None
         alarm = False
         if self.config.monitor is not None and used and fault is None:
-            alarm = update(self.config.monitor, self.monitor_state, nis, int(use.sum()))
+            alarm = update(self.config.monitor, self.monitor_state, nis,
+                           int((use & ~self._left_out).sum()))
             if alarm and self._bank is not None and self._bank.busy:
                 alarm = False             # the bank is locating a change: it answers
                 after_reseed(self.monitor_state)
@@ -457,6 +478,27 @@ class RBPF:
         filters that are not at their prior."""
         return self._fast and not self._at_prior \
             and self.n_steps - self._last_data_step >= PRIOR_SAMPLES
+
+    def _count_sensors(self, finite: np.ndarray) -> None:
+        """A sample with data, values where ``finite`` (ny,): count each sensor's run of
+        samples without and with a value, and leave out (or take back) the sensors
+        :mod:`gateway.estimator.sensormask` says. A change works like a hold: fast mode
+        goes back to the exact recursion from the steady covariance (whose gains were
+        for the old sensor set) for ``fast_warmup_s`` of data, and the fault bank stops
+        and waits ``after_hold_s``."""
+        tally(self._absent, self._present, finite)
+        fs = self.config.fs_hz
+        new = next_mask(self._left_out, self._absent, self._present,
+                        int(round(DEAD_AFTER_S * fs)), int(round(BACK_AFTER_S * fs)))
+        if np.array_equal(new, self._left_out):
+            return
+        if self._steady:
+            self._leave_steady(partial=False)
+        if self._bank is not None:
+            self._bank.stop()
+        self._bank_from = self._data_since_start
+        self._left_out = new
+        self._set_speed(self._v_ref)      # H without the dead rows; the bank's model too
 
     def _bank_step(self, y: np.ndarray, use: np.ndarray, t_s: float) -> Detection | None:
         """The fault bank's view of one sample (after the particles took it): scored
@@ -548,6 +590,7 @@ class RBPF:
         Y = np.zeros((k, self.ny))
         full = np.zeros(k, dtype=bool)
         tol = cfg.speed_tol * self._v_ref
+        out = self._left_out
         for j, smp in enumerate(samples):
             y = np.asarray(smp.values, dtype=float).reshape(-1)
             v = float(smp.speed_mps)
@@ -555,8 +598,11 @@ class RBPF:
                 k = j
                 break
             fin = np.isfinite(y)
-            if bool(smp.update) and fin.all():
-                Y[j], full[j] = y, True
+            if bool(smp.update) and (fin & out).any():
+                k = j         # a left-out sensor has a value: the per-sample path counts
+                break         # it back in
+            if bool(smp.update) and (fin | out).all():
+                Y[j], full[j] = np.where(out, 0.0, y), True
             elif bool(smp.update) and fin.any():
                 k = j
                 break
@@ -598,7 +644,7 @@ class RBPF:
         self._step_block(Y, full, LL, NIS)
         mon = cfg.monitor
         ess_min = cfg.ess_threshold * m if cfg.resample else -1.0
-        dof = np.where(full, self.ny, 0).astype(np.int64)
+        dof = np.where(full, self.ny - int(out.sum()), 0).astype(np.int64)
         if mon is None:
             took, logw, w = pt.absorb_block(self.logw, LL, NIS, self._weights(), ess_min,
                                             False, dof, 1, 0.0, 0.0, 0, 0,
@@ -622,6 +668,8 @@ class RBPF:
                 bank.scan(Y[:took], full[:took], samples[0].t_s, 1.0 / cfg.fs_hz)
         if took:
             self._data_since_start += int(full[:took].sum())
+            if full[:took].any():         # each with every sensor in use, none left out
+                tally(self._absent, self._present, ~out, int(full[:took].sum()))
             self.logw = logw
             self._w_cache, self._w_of = w, logw
             self.t_s = float(samples[took - 1].t_s)
@@ -841,6 +889,8 @@ class RBPF:
         gains = {k[6:]: arrays.pop(k) for k in list(arrays) if k.startswith("gains_")}
         for k, v in arrays.items():
             setattr(self, k, v)
+        if self._p0_set and self._left_out.any():
+            self._set_output()
         if self._p0_set and "_phi" not in arrays:
             self._disc.compute(self.theta[:, :3], self._q(), self._phi, self._qd)
         if self._steady and set(gains) == set(_GAINS):
@@ -856,6 +906,12 @@ class RBPF:
         if self._bank is not None:
             self._bank.load(bank)
         return self
+
+    @property
+    def left_out(self) -> np.ndarray:
+        """The sensors the filters leave out now (bool (ny,), sensor-set order): dead
+        ones (:mod:`gateway.estimator.sensormask`)."""
+        return self._left_out.copy()
 
     def noise_check(self) -> NoiseCheck | None:
         """None: a plain filter makes no sensor-noise test (:mod:`.noisestart` does)."""
