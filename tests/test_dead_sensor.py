@@ -188,3 +188,36 @@ def test_a_healthy_vehicle_with_a_dead_node_raises_nothing() -> None:
                       dead=("acc_w1", "acc_w2"))
     assert row["detections"] == 0 and row["alerts"] == 0 and row["monitor_alarms"] == 0, row
     assert max(abs(z) for z in row["final_z"]) < 3.0, row
+
+
+@pytest.mark.slow
+def test_gateway_replay_alerts_a_failed_damper_with_the_wheelset_node_dead(tmp_path) -> None:
+    """Through ``gateway replay`` (front end, worker process, alert policy), 5 sensors, a
+    CAN log of the lateral damper failing at 12 s (Csy 40 -> 10 kNs/m) with no wheelset
+    frame at all: a Csy alert within 3 s, none on another parameter, and the report's
+    sensor-noise test names the two sensors left out. Before 2026-11-27 the same log
+    gave no alert at all (every estimate provisional, the fault bank never ran)."""
+    import json
+    import subprocess
+    import sys
+
+    from firmware_sim.output import write_log
+    from firmware_sim.scenarios import get_scenario
+    from firmware_sim.simulation import SimConfig, Simulation
+    from gateway.can.codec import default_codec
+
+    wsn = default_codec().message("WSN_Lat").frame_id
+    sim = Simulation(get_scenario("lateral-failing"), SimConfig(duration_s=24.0, seed=41))
+    log = tmp_path / "dead-wsn.log"
+    write_log((m for m in sim.messages() if m.arbitration_id != wsn), log)
+    report = tmp_path / "report.json"
+    proc = subprocess.run([sys.executable, "-m", "gateway", "replay", str(log), "--sensors",
+                           "5", "--report", str(report), "--no-progress"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rep = json.loads(report.read_text())
+    raised = [(a["t_s"], a["parameter"]) for a in rep["alerts"] if a["state"] == "raised"]
+    assert raised and all(p == "csy_ns_per_m" for _, p in raised), raised
+    assert 12.0 < raised[0][0] <= 15.0, raised
+    note = rep["diagnostics"]["sensor_noise"]["note"]
+    assert note == "not measured: acc_w1, acc_w2 (no values: left out)", note
