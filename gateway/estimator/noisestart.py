@@ -96,8 +96,9 @@ def decide(model_var: np.ndarray, band: np.ndarray, signal: np.ndarray,
 def _usable(sample: Sample) -> bool:
     """A sample the filter learns from: an update with a sensor's value. (Until
     2026-11-27 every sensor's: with a sensor dead from boot the test never began, and
-    every estimate stayed provisional, so no alert was ever judged; now the test gives
-    up after ``GIVE_UP_WINDOWS`` windows without complete data, saying why.)"""
+    every estimate stayed provisional, so no alert was ever judged. Now the test measures
+    the sensors in use, a dead one left out (:meth:`NoiseCheckedStart._values`), and
+    without complete data it gives up after ``GIVE_UP_WINDOWS`` windows, saying why.)"""
     return bool(sample.update) and bool(np.any(np.isfinite(sample.values)))
 
 

@@ -702,8 +702,9 @@ class Resampler:
         up to the next sample: its later samples will never come)."""
         st = self._st
         fs = self.config.fs_hz
+        newest_s = self._newest_s()
         waited = [node for node in self._required
-                  if not (node.excluded or self._silent(node))]
+                  if not (node.excluded or self._silent(node, newest_s))]
         if not waited:
             return              # nothing to wait for: the deadline moves the grid on
         while st.next_j is not None:
@@ -716,20 +717,23 @@ class Resampler:
                     return
             self._finalize(st.next_j)
 
-    def _silent(self, node: NodeState) -> bool:
+    def _newest_s(self) -> float:
+        """Time of the newest sample of any lateral node (receive clock, s; -inf: none)."""
+        lateral = (self._st.nodes[s.message] for s in self._lateral)
+        return max((n.clock.time_s(n.k_stored) for n in lateral
+                    if n.seen and n.k_stored != _EMPTY and n.clock.started), default=-math.inf)
+
+    def _silent(self, node: NodeState, newest_s: float | None = None) -> bool:
         """Is this node's newest sample (never seen: the grid's start) ``silent_s`` behind
-        the newest sample of any lateral node? Measured in data, not against the receive
-        time: after a stalled receive thread every node's frames come in one burst, and
-        none of them is silent. A node whose clock model is restarting is not silent."""
+        ``newest_s``, the newest sample of any lateral node? Measured in data, not against
+        the receive time: after a stalled receive thread every node's frames come in one
+        burst, and none of them is silent. A node whose clock model is restarting is not
+        silent."""
         if node.seen and (node.k_stored == _EMPTY or not node.clock.started):
             return False
-        lateral = (self._st.nodes[s.message] for s in self._lateral)
-        newest = [n.clock.time_s(n.k_stored) for n in lateral
-                  if n.seen and n.k_stored != _EMPTY and n.clock.started]
-        if not newest:
-            return False
         own_s = node.clock.time_s(node.k_stored) if node.seen else self._st.started_s
-        return max(newest) - own_s > self.config.silent_s
+        newest = self._newest_s() if newest_s is None else newest_s
+        return newest - own_s > self.config.silent_s
 
     def _release_until(self, t_max_s: float) -> None:
         """Finalise every grid point at or before ``t_max_s`` (deadline passed)."""
