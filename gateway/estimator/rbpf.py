@@ -494,6 +494,8 @@ class RBPF:
             return
         if self._steady:
             self._leave_steady(partial=False)
+        elif self._fast:                  # inside a warm-up: the whole warm-up again
+            self._warm_left = max(self._warm_left, self._warm_steps())
         if self._bank is not None:
             self._bank.stop()
         self._bank_from = self._data_since_start
