@@ -225,6 +225,8 @@ class NodeState:
     excluded: bool = False
     k_stored: int = _EMPTY
     """Highest sample index stored in the ring."""
+    newest_s: float = -math.inf
+    """Receive-clock time of sample ``k_stored`` when it was stored (-inf: none)."""
     late_samples: int = 0
     reordered_samples: int = 0
     received: int = 0
@@ -516,7 +518,8 @@ class Resampler:
         node.ring_suspect[slot] = suspect
         if self._sinc and stream.lateral:
             self._cache_slot(stream.message, node, slot)
-        node.k_stored = max(node.k_stored, k)
+        if k > node.k_stored:
+            node.k_stored, node.newest_s = k, node.clock.time_s(k)
         if node.drop_k[slot] != k:
             node.receive(k)
         if not stream.lateral:
@@ -607,7 +610,7 @@ class Resampler:
             node.ring_k[:] = [_EMPTY] * len(node.ring_k)
             if self._sinc and stream.lateral:
                 self._taps_k[stream.message][:] = _EMPTY
-            node.k_stored = _EMPTY
+            node.k_stored, node.newest_s = _EMPTY, -math.inf
             node.missing_before = node.missing_samples()
             node.received, node.k_lo, node.k_hi = 0, _EMPTY, _EMPTY
             st.counters["resyncs"] += 1
@@ -719,9 +722,12 @@ class Resampler:
 
     def _newest_s(self) -> float:
         """Time of the newest sample of any lateral node (receive clock, s; -inf: none)."""
-        lateral = (self._st.nodes[s.message] for s in self._lateral)
-        return max((n.clock.time_s(n.k_stored) for n in lateral
-                    if n.seen and n.k_stored != _EMPTY and n.clock.started), default=-math.inf)
+        newest = -math.inf
+        for stream in self._lateral:
+            node = self._st.nodes[stream.message]
+            if node.newest_s > newest and node.clock.started:
+                newest = node.newest_s
+        return newest
 
     def _silent(self, node: NodeState, newest_s: float | None = None) -> bool:
         """Is this node's newest sample (never seen: the grid's start) ``silent_s`` behind
@@ -731,7 +737,7 @@ class Resampler:
         silent."""
         if node.seen and (node.k_stored == _EMPTY or not node.clock.started):
             return False
-        own_s = node.clock.time_s(node.k_stored) if node.seen else self._st.started_s
+        own_s = node.newest_s if node.seen else self._st.started_s
         newest = self._newest_s() if newest_s is None else newest_s
         return newest - own_s > self.config.silent_s
 
