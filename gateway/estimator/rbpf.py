@@ -500,7 +500,8 @@ class RBPF:
             self._bank.stop()
         self._bank_from = self._data_since_start
         self._left_out = new
-        self._set_speed(self._v_ref)      # H without the dead rows; the bank's model too
+        self._end_rejoin()                # its target was the old set's steady P+
+        self._set_output()                # H without the dead rows; the bank's model too
 
     def _bank_step(self, y: np.ndarray, use: np.ndarray, t_s: float) -> Detection | None:
         """The fault bank's view of one sample (after the particles took it): scored
