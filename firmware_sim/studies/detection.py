@@ -20,7 +20,9 @@ nominal, Sec. 4.2 speed) with 3 and 5 sensors and prints one JSON line per run:
 ``--hold-every-s 30 --hold-s 3`` holds the updates for 3 s every 30 s, as the gate does in
 a curve and its straight hold (nominal runs); ``--hold-at-s 7 10`` holds them for
 ``--hold-s`` from each of those times (fault runs);
-``summary < rows.jsonl`` gives the per-case medians and worst cases.
+``--dead acc_w1 acc_w2`` runs either with those sensors' values missing throughout (a
+dead node); ``summary < rows.jsonl`` gives the per-case medians and worst cases and
+``plot`` the figure (both in :mod:`firmware_sim.studies.detection_report`).
 Data seed ``2000 + seed`` (fresh: the accuracy study uses ``1000 + seed``), filter seed
 ``seed``; the filter is the service's (:func:`gateway.runtime.pipeline.build_estimator`
 from the default ``[estimator]`` settings: fast mode, drift 0.01/sqrt(s), the innovation
@@ -39,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from firmware_sim.studies.detection_report import plot, summary
 from firmware_sim.studies.holds import holds, periodic_holds
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
@@ -252,80 +255,6 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
             "final_z": [round((m - t) / s, 2)
                         for m, s, t in zip(last.mean[:3], last.std[:3], th[-1], strict=True)],
             "wall_s": round(time.perf_counter() - t0, 1)}
-
-
-def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per fault case (parameter, factor, sensors): runs, median and worst detection and
-    tracking delays (s), first alert and ALARM (and the first alert of the policy that
-    judges the estimates alone, rows since 2026-11-26), runs detected on the right
-    parameter, wrong and early detections. A case's worst is None when some run never
-    detected, tracked or alerted."""
-    out = []
-    keys = sorted({(r["parameter"], r["factor"], r["sensors"]) for r in rows
-                   if r["what"] == "fault"})
-    for key in keys:
-        case = [r for r in rows if r["what"] == "fault"
-                and (r["parameter"], r["factor"], r["sensors"]) == key]
-        row: dict[str, Any] = {"parameter": key[0], "factor": key[1], "sensors": key[2],
-                               "runs": len(case)}
-        for name in ("detect_s", "track_s", "alert_s", "alarm_s", "alert_estimates_only_s"):
-            vals = [r.get(name) for r in case]
-            got = [v for v in vals if v is not None]
-            row[f"{name}_median"] = float(np.median(got)) if got else None
-            row[f"{name}_worst"] = max(got) if len(got) == len(vals) else None
-        row["detected"] = sum(r["detect_s"] is not None for r in case)
-        row["wrong"] = sum(r["wrong"] for r in case)
-        row["before"] = sum(r["before"] for r in case)
-        row["alerts_healthy"] = sum(r.get("alerts_healthy", 0) for r in case)
-        row["alerts_before"] = sum(r.get("alerts_before", 0) for r in case)
-        out.append(row)
-    return out
-
-
-def plot(rows: Sequence[dict[str, Any]], path: str) -> None:
-    """Detection and tracking delay against fault size, one panel per parameter: the
-    median over the realisations, bars from the best to the worst; 3 and 5 sensors."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    faults = [r for r in rows if r["what"] == "fault"]
-    params = [p for p in PARAM_NAMES if any(r["parameter"] == p for r in faults)]
-    fig, axes = plt.subplots(1, len(params), figsize=(4.2 * len(params), 3.6),
-                             squeeze=False, sharey=True)
-    styles = {("detect_s", 3): ("C0", "o"), ("detect_s", 5): ("C0", "s"),
-              ("track_s", 3): ("C1", "o"), ("track_s", 5): ("C1", "s")}
-    for ax, name in zip(axes[0], params, strict=True):
-        for (key, ns), (colour, marker) in styles.items():
-            sizes = sorted({r["factor"] for r in faults
-                            if r["parameter"] == name and r["sensors"] == ns})
-            pts = []
-            for f in sizes:
-                vals = [r[key] for r in faults if r["parameter"] == name
-                        and r["sensors"] == ns and r["factor"] == f]
-                got = [v for v in vals if v is not None]
-                if got:
-                    pts.append((f * (0.97 if ns == 3 else 1.03), float(np.median(got)),
-                                min(got), max(got) if len(got) == len(vals) else np.nan))
-            if pts:
-                x, med, lo, hi = (np.array(c) for c in zip(*pts, strict=True))
-                ax.errorbar(x, med, yerr=[med - lo, np.where(np.isnan(hi), 0, hi - med)],
-                            color=colour, marker=marker, ls="none", capsize=3,
-                            label=f"{'detect' if key == 'detect_s' else 'within 15 %'}, "
-                                  f"{ns} sensors")
-        ax.set_xscale("log")
-        ticks = sorted({r["factor"] for r in faults if r["parameter"] == name})
-        ax.minorticks_off()
-        ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
-        ax.set_xlabel(f"{name}: new value / nominal")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel("delay after the fault (s)")
-    axes[0][-1].legend(fontsize=7)
-    fig.suptitle("Abrupt faults: median, best to worst over realisations "
-                 "(python -m firmware_sim.studies.detection)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def fault_case(text: str) -> tuple[int, float]:
