@@ -34,7 +34,8 @@ def test_vectorised_cusum_is_pages_recursion() -> None:
 @pytest.mark.parametrize("bad", [dict(factors=(0.5, 1.0)), dict(factors=()),
                                  dict(factors=(0.5, 0.5)), dict(factors=(-0.5,)),
                                  dict(h_nats=0.0), dict(locate_s=-1.0),
-                                 dict(locate_cov_scale=0.5), dict(locate_max_s=0.5)])
+                                 dict(locate_cov_scale=0.5), dict(locate_max_s=0.5),
+                                 dict(replay_s=-1.0)])
 def test_bad_bank_settings_are_refused(bad: dict) -> None:
     with pytest.raises(EstimatorError, match="expected"):
         FaultBankConfig(**bad)
@@ -96,14 +97,66 @@ def test_an_inconclusive_location_sums_on_until_it_decides() -> None:
     """Csy x 0.5 at 8 s, 3 sensors, 2 x the model's sensor noise, seed 93. Its first
     location ends with the best value ahead of the reference by less than h/2; with
     the location phase fixed at 1 s the bank never detects the change in 10 s. Summing
-    on (up to ``locate_max_s``) detects it on Csy, inside the redraw range."""
+    on (up to ``locate_max_s``) detects it on Csy, inside the redraw range. Both
+    located from the confirmation (no replay), the location this rule was built for."""
     fixed, row = (fault_row(0, 0.5, 3, 93, seconds=18.0, fault_at_s=8.0, particles=1000,
-                            mode="fast", noise_scale=2.0, locate_max_s=m) for m in (1.0, None))
+                            mode="fast", noise_scale=2.0, locate_max_s=m, replay_s=0.0)
+                  for m in (1.0, None))
     assert fixed["detect_s"] is None and fixed["locate_max_s"] == 1.0, fixed
     assert row["detect_s"] is not None and row["detect_s"] <= 5.0, row
     assert row["detect_s"] - row["confirmed_s"] > 1.0, row          # summed on
     assert 1 / 1.52 <= row["located_rel"] <= 1.52, row
     assert row["wrong"] == 0 and row["before"] == 0 and row["alerts_healthy"] == 0, row
+
+
+@pytest.mark.slow
+def test_the_location_replays_the_change_and_decides_at_the_confirmation() -> None:
+    """Csy x 0.5 at 8 s, 3 sensors, 2 x the model's sensor noise, seed 93: the CUSUM
+    crosses about 3 s after the change. Located from the confirmation on, the change was
+    decided a second later still, and first alerted at +5.8 s. Replaying from the
+    change point, the grid has more than ``locate_s`` of data at the confirmation: the
+    change is decided there, on Csy, with the truth in the redraw range, and alerted
+    within the issue's 5 s."""
+    old, new = (fault_row(0, 0.5, 3, 93, seconds=14.0, fault_at_s=8.0, particles=1000,
+                          mode="fast", noise_scale=2.0, replay_s=r) for r in (0.0, None))
+    assert new["replay_s"] == 2.0 and old["replay_s"] == 0.0
+    assert old["confirmed_s"] == new["confirmed_s"] > 1.0, (old, new)   # same watch phase
+    assert old["detect_s"] - old["confirmed_s"] >= 1.0, old
+    assert new["detect_s"] == new["confirmed_s"], new
+    assert 1 / 1.52 <= new["located_rel"] <= 1.52, new
+    assert new["alert_s"] is not None and new["alert_s"] <= 5.0, new
+    assert new["wrong"] == 0 and new["before"] == 0 and new["alerts_healthy"] == 0, new
+
+
+@pytest.mark.slow
+def test_checkpoint_while_watching_keeps_the_look_back() -> None:
+    """Checkpoint while the bank watches, before a Csy x 0.25 step at 6 s: the restored
+    filter holds the same look-back and gives the same estimates and detection, bit for
+    bit. A checkpoint from before the look-back (no look-back arrays, no ``replay_s``)
+    restores without a replay, as it ran."""
+    from gateway.estimator import checkpoint as ckpt
+
+    _, Y = fault_data(0, 0.25, 3, seed=14, seconds=10.0, fault_at_s=6.0)
+    a = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=256, sensors=3, seed=14, mode="fast"))
+    smp = _samples(Y)
+    k = int(5.9 * FS_HZ)
+    a.run(smp[:k], output_every=100)
+    assert a._bank is not None and a._bank.active and a._bank.lookback.count > 1000
+    b = RBPF.restore(a.checkpoint())
+    assert b._bank is not None
+    for key, arr in a._bank.lookback.arrays().items():
+        np.testing.assert_array_equal(b._bank.lookback.arrays()[key], arr, err_msg=key)
+    ea, eb = (f.run(smp[k:], output_every=50) for f in (a, b))
+    assert a.n_fault_detections == b.n_fault_detections >= 1
+    assert a.last_fault() == b.last_fault()
+    assert [(e.mean, e.std, e.located) for e in ea] == [(e.mean, e.std, e.located) for e in eb]
+    meta, arrays = ckpt.unpack(a.checkpoint())
+    for key in [key for key in arrays if key.startswith("bank_lb_")]:
+        del arrays[key]
+    del meta["config"]["faults"]["replay_s"]
+    c = RBPF.restore(ckpt.pack(meta, arrays))
+    assert c.config.faults is not None and c.config.faults.replay_s == 0.0
+    c.run(smp[k:], output_every=50)
 
 
 def _locating_bank(seed: int) -> tuple[RBPF, list[Sample], int]:
@@ -303,12 +356,13 @@ def test_location_ends_at_the_first_decisive_sample(left: int, min_s: float, pea
 def test_early_location_keeps_the_truth_in_the_redraw_range(parameter: int, factor: float,
                                                             sensors: int) -> None:
     """A damper step at 8 s, fresh seed 41, the service's filter with the early stop
-    (an option, off by default) and with the full 1 s location phase: the early one
-    decides sooner, on the same parameter, and the new value lies inside its redraw
-    range (three grid steps, a factor 1.52 either side of the located value); the
-    estimate is within 15 % by +5 s."""
+    (an option, off by default) and with the full 1 s location phase, both located
+    from the confirmation (no replay): the early one decides sooner, on the same
+    parameter, and the new value lies inside its redraw range (three grid steps, a
+    factor 1.52 either side of the located value); the estimate is within 15 % by +5 s."""
     rows = [fault_row(parameter, factor, sensors, 41, seconds=14.0, fault_at_s=8.0,
-                      particles=1000, mode="fast", locate_min_s=m) for m in (0.1, None)]
+                      particles=1000, mode="fast", locate_min_s=m, replay_s=0.0)
+            for m in (0.1, None)]
     early, full = rows
     assert early["locate_min_s"] < early["locate_s"] <= full["locate_min_s"]
     for row in rows:

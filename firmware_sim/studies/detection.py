@@ -94,11 +94,12 @@ Filter = RBPF | NoiseCheckedStart
 def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    sensor_noise: str = "measured", moves_drop_null: bool | None = None,
                    start_ramp_s: float | None = None, locate_min_s: float | None = None,
-                   locate_max_s: float | None = None) -> Filter:
+                   locate_max_s: float | None = None, replay_s: float | None = None
+                   ) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
     sensor-noise test, the start's likelihood ramp); ``moves_drop_null`` and
-    ``start_ramp_s`` override those options of the filter, ``locate_min_s`` and
-    ``locate_max_s`` those of its fault bank
+    ``start_ramp_s`` override those options of the filter, ``locate_min_s``,
+    ``locate_max_s`` and ``replay_s`` those of its fault bank
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`,
     :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
@@ -114,7 +115,8 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
         bank = rbpf.faults
         rbpf = replace(rbpf, faults=replace(
             bank, locate_min_s=bank.locate_min_s if locate_min_s is None else locate_min_s,
-            locate_max_s=bank.locate_max_s if locate_max_s is None else locate_max_s))
+            locate_max_s=bank.locate_max_s if locate_max_s is None else locate_max_s,
+            replay_s=bank.replay_s if replay_s is None else replay_s))
     if rbpf == filt.config:
         return filt
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
@@ -155,7 +157,8 @@ def _bank_columns(filt: Filter) -> dict[str, Any]:
     bank = filt.config.faults
     return {"locate_min_s": None if bank is None else bank.locate_min_s,
             "locate_s": None if bank is None else bank.locate_s,
-            "locate_max_s": None if bank is None else bank.locate_max_s}
+            "locate_max_s": None if bank is None else bank.locate_max_s,
+            "replay_s": None if bank is None else bank.replay_s}
 
 
 def _last(filt: Filter) -> tuple[float, str, float, float]:
@@ -176,14 +179,14 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
               locate_min_s: float | None = None, locate_max_s: float | None = None,
-              hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
+              replay_s: float | None = None, hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
               dead: Sequence[str] = ()) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
-                                             locate_max_s=locate_max_s),
+                                             locate_max_s=locate_max_s, replay_s=replay_s),
                            held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None)
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
@@ -229,14 +232,15 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
 def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode: str,
                 noise_scale: float = 1.0, sensor_noise: str = "measured",
                 moves_drop_null: bool | None = None, locate_min_s: float | None = None,
-                locate_max_s: float | None = None, hold_every_s: float | None = None,
+                locate_max_s: float | None = None, replay_s: float | None = None,
+                hold_every_s: float | None = None,
                 hold_s: float = 3.0, dead: Sequence[str] = ()) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
-                                             locate_max_s=locate_max_s),
+                                             locate_max_s=locate_max_s, replay_s=replay_s),
                            held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s))
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
@@ -315,6 +319,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--locate-max-s", type=float, default=None,
                     help="the fault bank's longest location phase, s (default: the bank's "
                          "own; its locate_s: no extension of an inconclusive location)")
+    ap.add_argument("--replay-s", type=float, default=None,
+                    help="the fault bank's look-back, s (default: the bank's own; 0: the "
+                         "location starts at the confirmation)")
     args = ap.parse_args(argv)
     if args.hold_every_s is not None and not args.hold_every_s > args.hold_s > 0:
         ap.error(f"expected --hold-every-s > --hold-s > 0 s, got {args.hold_every_s} and "
@@ -324,6 +331,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.locate_max_s is not None and not args.locate_max_s >= FaultBankConfig.locate_s:
         ap.error(f"expected --locate-max-s >= {FaultBankConfig.locate_s} s (the location "
                  f"phase), got {args.locate_max_s}")
+    if args.replay_s is not None and not args.replay_s >= 0:
+        ap.error(f"expected --replay-s >= 0 s, got {args.replay_s}")
     if args.what in ("summary", "plot"):
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
         if args.what == "plot":
@@ -341,6 +350,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     moves_drop_null=args.moves_drop_null,
                                     locate_min_s=args.locate_min_s,
                                     locate_max_s=args.locate_max_s,
+                                    replay_s=args.replay_s,
                                     hold_every_s=args.hold_every_s, hold_s=args.hold_s,
                                     dead=args.dead)]
             else:
@@ -351,6 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   moves_drop_null=args.moves_drop_null,
                                   locate_min_s=args.locate_min_s,
                                   locate_max_s=args.locate_max_s,
+                                  replay_s=args.replay_s,
                                   hold_at_s=args.hold_at_s, hold_s=args.hold_s,
                                   dead=args.dead)
                         for p, f in args.cases]

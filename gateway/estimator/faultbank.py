@@ -1,7 +1,8 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (593): the watch, confirm and locate phases share one state vector and
-one set of filters; splitting them would pass that state around.
+Over 400 lines (about 725): the watch, confirm and locate phases share one state vector
+and one set of filters; splitting them would pass that state around. What the location
+replays is kept by :mod:`gateway.estimator.lookback`.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
 crawl, and the innovation monitor (:mod:`gateway.estimator.monitor`) tests the cloud's
@@ -20,12 +21,19 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
 - *Confirm.* ``confirm_s`` after a crossing the largest CUSUM, if still over ``h``,
   names the parameter and the side (drop or rise).
 - *Locate.* The hypotheses become a grid over that parameter on that side
-  (:meth:`FaultBank.locate_grid`), every filter restarting from the leading hypothesis's
-  state less its unobservable static-yaw component (a conicity change would otherwise
-  turn that arbitrary component into a transient the data never had, and the grid read
-  it as a larger rise). That state was estimated under another value, and this model's
-  slow closed-loop mode (about 8 s) would carry its error through the whole phase under
-  steady gains, biasing the grid towards the value it came from. So each grid filter
+  (:meth:`FaultBank.locate_grid`). For a damper (since 2026-11-27, ``replay_s``), every
+  filter starts from the reference's state at the likeliest change time (the
+  generalised likelihood ratio's, up to ``replay_s`` back, :meth:`FaultBank._glr_start`)
+  and replays the samples since (:mod:`gateway.estimator.lookback`): the evidence that
+  made the CUSUM cross counts, and the phase's ``locate_s`` runs from the change time,
+  so a change that took longer than ``locate_s`` to cross is decided at the
+  confirmation. The conicity does not replay (:data:`CONICITY`). Without a replay every
+  filter restarts from the leading hypothesis's state less its unobservable static-yaw
+  component (a conicity change would otherwise turn that arbitrary component into a
+  transient the data never had, and the grid read it as a larger rise). Either state
+  was estimated under another value, and this model's slow closed-loop mode (about
+  8 s) would carry its error through the whole phase under steady gains, biasing the
+  grid towards the value it came from. So each grid filter
   runs the exact Kalman recursion (:func:`gateway.estimator.kalman.kf_block`) from a
   covariance ``locate_cov_scale`` times its own steady covariance, which lets it correct
   that error within the phase. Their log-likelihood ratios to the reference are summed
@@ -70,6 +78,7 @@ from gateway.errors import EstimatorError
 from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.kalman import from_lanes, kf_block, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
+from gateway.estimator.lookback import SNAP_EVERY, Lookback
 from gateway.estimator.steady import (
     NullVectors,
     SteadyGains,
@@ -82,6 +91,13 @@ from gateway.model.coordinates import NZ
 
 N_THETA = 3
 """Parameters the bank tests (Csy, Csay, lambda); Ar, when estimated, is not."""
+CONICITY = 2
+"""Index of the conicity in theta. Its location does not replay: a conicity change
+turns the vehicle's static yawed set-up, unobservable before it (model notes section 2),
+into a transient the model cannot predict, and the first second after a rise then
+favours larger values (lambda x 1.6, fresh seeds: located at 1.07-1.46 x the truth
+with the replay, 0.92-1.12 x without; docs/estimator.md "The location replays the
+change"). A damper change leaves that set-up where it was."""
 REDRAW_STEPS = 3
 """Location grid steps either side of the located value over which the detected
 parameter is redrawn (:meth:`FaultBank.redraw_range`)."""
@@ -109,7 +125,9 @@ class FaultBankConfig:
     early stop's locations were biased, docs/estimator.md);
     ``locate_cov_scale``: the location grid's exact filters start from this multiple of
     their steady covariance (module docstring; measured in docs/estimator.md, "A fair
-    location").
+    location"); ``replay_s``: the longest look-back (s) over which the location grid
+    replays from the likeliest change time (:mod:`gateway.estimator.lookback`; 0: the
+    grid starts at the confirmation, as before 2026-11-27).
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -123,6 +141,7 @@ class FaultBankConfig:
     locate_min_s: float = 1.0
     locate_max_s: float = 3.0
     locate_cov_scale: float = 100.0
+    replay_s: float = 2.0
 
     def __post_init__(self) -> None:
         f = np.asarray(self.factors, dtype=float)
@@ -140,7 +159,7 @@ class FaultBankConfig:
             raise EstimatorError(f"expected locate_cov_scale >= 1 (a multiple of the steady "
                                  f"covariance), got {self.locate_cov_scale}")
         for name in ("start_after_s", "after_hold_s", "max_rel_std", "hold_s", "confirm_s",
-                     "locate_s", "locate_min_s"):
+                     "locate_s", "locate_min_s", "replay_s"):
             if not getattr(self, name) >= 0:
                 raise EstimatorError(f"expected {name} >= 0, got {getattr(self, name)}")
 
@@ -196,6 +215,7 @@ class FaultBank:
         self._part = 0
         self._model: tuple[DiscreteBatch, NullVectors, np.ndarray, np.ndarray, float] | None \
             = None
+        self.lookback = Lookback(0, 1, self.n_params)  # sized by set_model
 
     # ----------------------------------------------------------------- state
     @property
@@ -221,7 +241,7 @@ class FaultBank:
     def arrays(self) -> dict[str, np.ndarray]:
         """The state to checkpoint (the gains are a function of it and the speed)."""
         return {"bank_ref": self.ref, "bank_g": self.g, "bank_x": self.x, "bank_vec": self.vec,
-                "bank_P": self.P}
+                "bank_P": self.P, **self.lookback.arrays()}
 
     def load(self, arrays: dict[str, np.ndarray]) -> None:
         """Restore :meth:`arrays` output (after :meth:`set_model`): the gains are solved
@@ -234,25 +254,30 @@ class FaultBank:
                     raise EstimatorError(f"expected {key} of shape {getattr(self, attr).shape}"
                                          f", got {arrays[key].shape}")
                 setattr(self, attr, np.array(arrays[key], dtype=float))
+        self.lookback.load(arrays)
         if self.active and self._model is not None:
             v0 = self._solve()
             if self.locating and "bank_P" not in arrays:
                 self.P = self._start_cov(v0)
 
-    def snapshot(self) -> tuple[np.ndarray, ...]:
-        """A copy of the whole state, gains included, for :meth:`rewind` (the estimator
-        scans ahead to find where a detection falls, then steps again up to there)."""
+    def snapshot(self) -> tuple[tuple[np.ndarray, ...], Lookback]:
+        """A copy of the whole state, gains and look-back included, for :meth:`rewind`
+        (the estimator scans ahead to find where a detection falls, then steps again up
+        to there)."""
         assert self._gains is not None
         gains = self._gains
-        return tuple(a.copy() for a in (self.ref, self.g, self.x, self.P, self.vec, self._phi,
-                                        self._qd, gains.p_pred, gains.g, gains.s, gains.c0,
-                                        gains.iters))
+        return (tuple(a.copy() for a in (self.ref, self.g, self.x, self.P, self.vec,
+                                         self._phi, self._qd, gains.p_pred, gains.g,
+                                         gains.s, gains.c0, gains.iters)),
+                self.lookback.copy())
 
-    def rewind(self, snap: tuple[np.ndarray, ...]) -> None:
+    def rewind(self, snap: tuple[tuple[np.ndarray, ...], Lookback]) -> None:
         """Back to a :meth:`snapshot`."""
+        arrays, lookback = snap
         self.ref, self.g, self.x, self.P, self.vec, self._phi, self._qd = (
-            a.copy() for a in snap[:7])
-        self._gains = SteadyGains(*(a.copy() for a in snap[7:]))
+            a.copy() for a in arrays[:7])
+        self._gains = SteadyGains(*(a.copy() for a in arrays[7:]))
+        self.lookback = lookback.copy()
 
     def stop(self) -> None:
         """Idle until :meth:`start` (a filter restart, a sensor outage, a reseed)."""
@@ -272,6 +297,7 @@ class FaultBank:
         self.x[:] = to_lanes(np.repeat(x, self.m, 0))
         self._hold()
         self._solve()
+        self.lookback.reset(x[0], self.ref)
 
     def _hold(self) -> None:
         self.g[:] = 0.0
@@ -295,8 +321,13 @@ class FaultBank:
         matrix (ny, 16), measurement variances (ny,) and track intensity per unit Ar."""
         self._model = (disc, null, H, r, float(q_unit))
         self._gains = SteadyGains.empty(self._nch, len(r))
+        window = round(self.config.replay_s * self.fs_hz)
+        if self.lookback.window != window or self.lookback.y.shape[1] != len(r):
+            self.lookback = Lookback(window, len(r), self.n_params)
         if self.active:
             self._solve()
+            # the look-back's samples were filtered under the last model
+            self.lookback.restart(self._ref_state(), self.ref)
 
     def refresh(self, theta_ref: np.ndarray) -> None:
         """Follow the cloud: the reference (and every hypothesis) moves to ``theta_ref``;
@@ -363,7 +394,7 @@ class FaultBank:
             return self._locate_part(Y, full, t0_s, dt_s)
         k = len(Y)
         x0 = self.x.copy()
-        LL = self._step(Y, full)
+        LL, snaps = self._watch(Y, full)
         d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)     # (k, J)
         self._part = k
         hold = int(self.vec[_HOLD])
@@ -374,12 +405,48 @@ class FaultBank:
         at = self._decision(g_path)
         if at is None:
             self.g = g_path[-1].copy()
+            self._keep(Y, full, snaps)
             return None
         self.x = x0
-        self._step(Y[:at + 1], full[:at + 1])
+        self._watch(Y[:at + 1], full[:at + 1])
+        self._keep(Y[:at + 1], full[:at + 1], snaps)
         self._part = at + 1
-        self._locate(int(np.argmax(g_path[at])), t0_s + at * dt_s)
-        return None
+        return self._locate(int(np.argmax(g_path[at])), t0_s + at * dt_s)
+
+    def _watch(self, Y: np.ndarray, full: np.ndarray
+               ) -> tuple[np.ndarray, list[tuple[int, np.ndarray]]]:
+        """Every filter stepped over ``Y`` (k, ny) with the steady gains, in place: the
+        log-likelihoods (k, lanes) and the reference state (16,) at each sample count
+        that is a multiple of :data:`gateway.estimator.lookback.SNAP_EVERY` (count,
+        state), for :meth:`_keep`."""
+        lb = self.lookback
+        if not lb.on:
+            return self._step(Y, full), []
+        LL = np.empty((len(Y), self._nch * LANES))
+        snaps: list[tuple[int, np.ndarray]] = []
+        c, j = lb.count, 0
+        while j < len(Y):
+            n = min(len(Y) - j, lb.until_snapshot(c + j))
+            LL[j:j + n] = self._step(Y[j:j + n], full[j:j + n])
+            j += n
+            if (c + j) % SNAP_EVERY == 0:
+                snaps.append((c + j, self._ref_state()))
+        return LL, snaps
+
+    def _keep(self, Y: np.ndarray, full: np.ndarray, snaps: list[tuple[int, np.ndarray]]
+              ) -> None:
+        """The look-back takes the watched samples ``Y`` (k, ny) with ``full`` (k,) and
+        the snapshots of :meth:`_watch` up to them."""
+        lb = self.lookback
+        for n, x in snaps:
+            if n <= lb.count + len(Y):
+                lb.snapshot(n, x, self.ref)
+        lb.commit(Y, full)
+
+    def _ref_state(self) -> np.ndarray:
+        """The reference filter's state (16,), as it is (its static-yaw component is
+        dropped when a replay starts from it)."""
+        return self.x.reshape(self._nch, NZ, LANES)[0, :, 0].copy()
 
     def _locate_part(self, Y: np.ndarray, full: np.ndarray, t0_s: float, dt_s: float
                      ) -> Detection | None:
@@ -427,20 +494,70 @@ class FaultBank:
         x = self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES]
         return self._without_null(x[None], self.hypotheses()[filt:filt + 1])[0]
 
-    def _locate(self, best: int, t_s: float) -> None:
-        """A confirmed crossing by hypothesis ``best``: every filter restarts from its
-        state, the hypotheses become a grid over the changed parameter on the crossing's
-        side of the reference (:meth:`locate_grid`), and their log-likelihood ratios
-        are summed for up to ``locate_s`` (:meth:`_located_row`)."""
+    def _locate(self, best: int, t_s: float) -> Detection | None:
+        """A confirmed crossing by hypothesis ``best`` at data time ``t_s``: the
+        hypotheses become a grid over the changed parameter on the crossing's side of
+        the reference (:meth:`locate_grid`), and their log-likelihood ratios are summed
+        (:meth:`_located_row`). With a look-back (``replay_s``; not for the conicity,
+        :data:`CONICITY`), every grid filter starts from the reference's state at the
+        snapshot :meth:`_glr_start` picks and replays the samples since; the detection
+        (or None) if that sum already decides. Without one (or before the look-back has
+        a snapshot), every filter starts from ``best``'s state here."""
         p, fi = divmod(best, len(self.factors))
-        state = self._state_of(1 + best)
+        state = self._state_of(1 + best)       # under its watch theta
+        starts = self.lookback.starts() if p != CONICITY else []
         self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
         self.vec[_LOC_SIDE] = -1.0 if self.factors[fi] < 1.0 else 1.0
         self.vec[_LEFT] = self._locate_samples(self.config.locate_max_s)
         self.vec[_CONF_T] = t_s
+        v0 = self._solve()                     # the grid's gains and null vectors
+        if starts:
+            n0, xs, ref0 = self._glr_start(starts)
+            state = self._without_null(xs[None], ref0[None])[0]
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
-        self.P = self._start_cov(self._solve())
+        self.P = self._start_cov(v0)
+        if not starts:
+            return None
+        Y, full = self.lookback.samples(n0)
+        if len(Y) == 0:
+            return None
+        LL = self._step(Y, full)
+        d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)
+        d[~np.isfinite(d)] = -np.inf
+        self.g = d.sum(axis=0)
+        self.vec[_LEFT] = max(1, int(self.vec[_LEFT]) - len(Y))
+        lead = float(self.g.max())
+        if len(Y) >= self._locate_samples(self.config.locate_s) \
+                and (lead > self.config.h_nats / 2.0 or not lead > 0.0):
+            return self._located(t_s)
+        return None
+
+    def _glr_start(self, starts: list[tuple[int, np.ndarray, np.ndarray]]
+                   ) -> tuple[int, np.ndarray, np.ndarray]:
+        """Of the look-back's snapshots ``starts`` (count, reference state, its theta;
+        oldest first), the one from which the location grid, run with steady gains from
+        the reference's state there, sums the largest log-likelihood ratio of any grid
+        value to the reference: the generalised likelihood ratio's change time (Willsky
+        and Jones 1976), to a snapshot's spacing. Samples before a change count against
+        every grid value, and a start after it misses the change's first evidence and
+        inherits a state estimated under the old value. Called in the location phase's
+        mode, with the grid's steady gains solved, before its filters start."""
+        assert self._gains is not None and self._model is not None
+        Y, full = self.lookback.samples(starts[0][0])
+        best, best_sum = starts[-1], -np.inf
+        for n, xs, ref0 in starts:
+            x = self._without_null(xs[None], ref0[None])
+            self.x[:] = to_lanes(np.repeat(x, self.m, 0))
+            k = n - starts[0][0]
+            LL = np.empty((len(Y) - k, self._nch * LANES))
+            kf_steady_block(self.x, self._phi, self._model[2], Y[k:], full[k:], self._gains,
+                            LL, np.empty_like(LL))
+            d = np.where(full[k:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)
+            total = float(np.max(d.sum(axis=0))) if len(d) else -np.inf
+            if total > best_sum:
+                best, best_sum = (n, xs, ref0), total
+        return best
 
     def _start_cov(self, v0: np.ndarray | None = None) -> np.ndarray:
         """The location grid's starting covariances (lane layout): ``locate_cov_scale``
@@ -516,6 +633,7 @@ class FaultBank:
             self.vec[_MODE] = _WATCH
             self._hold()
             self._solve()
+            self.lookback.restart(self._ref_state(), self.ref)
             return None
         det = Detection(parameter=p, factor=float(grid[best]), t_s=t_s,
                         reference=float(self.ref[p]), state=self._state_of(1 + best),
@@ -529,6 +647,7 @@ class FaultBank:
         self.x[:] = to_lanes(np.repeat(det.state[None], self.m, 0))
         self._hold()
         self._solve()
+        self.lookback.restart(det.state, self.ref)
         return det
 
     def _decision(self, g_path: np.ndarray) -> int | None:

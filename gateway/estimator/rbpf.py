@@ -1013,6 +1013,8 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
         # location phase, and no more
         bank.setdefault("locate_min_s", bank.get("locate_s", FaultBankConfig.locate_s))
         bank.setdefault("locate_max_s", bank.get("locate_s", FaultBankConfig.locate_s))
+        # ... and before the look-back, located from the confirmation on
+        bank.setdefault("replay_s", 0.0)
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
