@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (about 725): the watch, confirm and locate phases share one state vector
+Over 400 lines (about 735): the watch, confirm and locate phases share one state vector
 and one set of filters; splitting them would pass that state around. What the location
 replays is kept by :mod:`gateway.estimator.lookback`.
 
@@ -395,7 +395,7 @@ class FaultBank:
         k = len(Y)
         x0 = self.x.copy()
         LL, snaps = self._watch(Y, full)
-        d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)     # (k, J)
+        d = self._ratios(LL, full)                                        # (k, J)
         self._part = k
         hold = int(self.vec[_HOLD])
         held = min(hold, k)
@@ -458,8 +458,7 @@ class FaultBank:
         Y, full = Y[:n], full[:n]
         x0, P0 = self.x.copy(), self.P.copy()
         LL = self._step(Y, full)
-        d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)     # (n, J)
-        d[~np.isfinite(d)] = -np.inf           # a failed filter (or reference) loses
+        d = self._grid_ratios(LL, full)                                   # (n, J)
         self._part = n
         j = self._located_row(d, left)
         if j is None:
@@ -523,15 +522,30 @@ class FaultBank:
         if len(Y) == 0:
             return None
         LL = self._step(Y, full)
-        d = np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)
-        d[~np.isfinite(d)] = -np.inf
-        self.g = d.sum(axis=0)
+        self.g = self._grid_ratios(LL, full).sum(axis=0)
         self.vec[_LEFT] = max(1, int(self.vec[_LEFT]) - len(Y))
-        lead = float(self.g.max())
-        if len(Y) >= self._locate_samples(self.config.locate_s) \
-                and (lead > self.config.h_nats / 2.0 or not lead > 0.0):
-            return self._located(t_s)
-        return None
+        return self._located(t_s) if self._settled(len(Y), self.g.max()) else None
+
+    def _ratios(self, LL: np.ndarray, full: np.ndarray) -> np.ndarray:
+        """Each hypothesis's log-likelihood ratio to the reference (k, J) from the
+        filters' log-likelihoods ``LL`` (k, lanes); 0 where ``full`` (k,) is False."""
+        return np.where(full[:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)
+
+    def _grid_ratios(self, LL: np.ndarray, full: np.ndarray) -> np.ndarray:
+        """:meth:`_ratios` while locating: a failed filter (or reference) loses."""
+        d = self._ratios(LL, full)
+        d[~np.isfinite(d)] = -np.inf
+        return d
+
+    def _settled(self, n: np.ndarray | int, lead: np.ndarray | float) -> np.ndarray:
+        """Whether a location with ``n`` samples summed and its best value ``lead``
+        nats ahead of the reference is decided without the early stop: ``locate_s``
+        summed, and the best value ahead by ``h / 2`` (a change) or not ahead at all
+        (none). Elementwise."""
+        return np.logical_and(
+            np.asarray(n) >= self._locate_samples(self.config.locate_s),
+            np.logical_or(np.asarray(lead) > self.config.h_nats / 2.0,
+                          np.logical_not(np.asarray(lead) > 0.0)))
 
     def _glr_start(self, starts: list[tuple[int, np.ndarray, np.ndarray]]
                    ) -> tuple[int, np.ndarray, np.ndarray]:
@@ -553,7 +567,7 @@ class FaultBank:
             LL = np.empty((len(Y) - k, self._nch * LANES))
             kf_steady_block(self.x, self._phi, self._model[2], Y[k:], full[k:], self._gains,
                             LL, np.empty_like(LL))
-            d = np.where(full[k:, None], LL[:, 1:self.m] - LL[:, :1], 0.0)
+            d = self._ratios(LL, full[k:])
             total = float(np.max(d.sum(axis=0))) if len(d) else -np.inf
             if total > best_sum:
                 best, best_sum = (n, xs, ref0), total
@@ -610,7 +624,7 @@ class FaultBank:
             far = np.abs(idx[None] - best[:, None]) >= REDRAW_STEPS
             runner = np.where(far, rows, -np.inf).max(axis=1)
             early = (n >= n_min) & (lead > half) & (lead - runner >= half)
-            settled = (n >= n_loc) & ((lead > half) | ~(lead > 0.0))
+            settled = self._settled(n, lead)
             stop = np.nonzero(early | settled)[0]
             if len(stop):
                 return first + int(stop[0])
