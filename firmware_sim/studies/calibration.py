@@ -55,12 +55,12 @@ SEED_OFFSET = {"paper": 3000, "box": 4000}
 
 
 def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float,
-           from_rest: bool = False) -> np.ndarray:
-    """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz, 42.5 m/s,
-    in stationary vibration from the first sample, or ``from_rest``."""
+           from_rest: bool = False, speed_mps: float = V_MPS) -> np.ndarray:
+    """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz,
+    ``speed_mps``, in stationary vibration from the first sample, or ``from_rest``."""
     n = int(round(seconds * FS_HZ))
     return measured(np.repeat(np.asarray(theta, dtype=float)[None], n, 0),
-                    np.full(n, V_MPS), FS_HZ, sensor_set(sensors),
+                    np.full(n, speed_mps), FS_HZ, sensor_set(sensors),
                     np.random.default_rng(data_seed),
                     burn_in_s=0.0 if from_rest else BURN_IN_S)
 
@@ -72,12 +72,14 @@ def box_theta(seed: int) -> np.ndarray:
     return np.random.default_rng(SEED_OFFSET["box"] + 500 + seed).uniform(lo, hi)
 
 
-def ml_fit(Y: np.ndarray, sensors: int, seconds: float) -> tuple[list[float], list[float]]:
-    """Maximum-likelihood theta and its sigma (SI) from the first ``seconds`` of ``Y``."""
+def ml_fit(Y: np.ndarray, sensors: int, seconds: float, speed_mps: float = V_MPS
+           ) -> tuple[list[float], list[float]]:
+    """Maximum-likelihood theta and its sigma (SI) from the first ``seconds`` of ``Y``
+    (T, ny), recorded at ``speed_mps``."""
     n = int(round(seconds * FS_HZ))
     t = np.arange(n) / FS_HZ
     ds = Dataset(t_s=t, measured=Y[:n], sensors=sensor_set(sensors),
-                 speed_mps=np.full(n, V_MPS), fs_hz=FS_HZ, source="calibration")
+                 speed_mps=np.full(n, speed_mps), fs_hz=FS_HZ, source="calibration")
     res = PredictionErrorIdentifier().fit(ds)
     return list(res.values), list(res.std)
 
@@ -85,27 +87,28 @@ def ml_fit(Y: np.ndarray, sensors: int, seconds: float) -> tuple[list[float], li
 def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              ml: bool, at_s: Sequence[float] | None = None,
              moves_drop_null: bool | None = None, from_rest: bool = False,
-             start_ramp_s: float | None = None, hold: tuple[float, float] | None = None
-             ) -> list[dict[str, Any]]:
+             start_ramp_s: float | None = None, hold: tuple[float, float] | None = None,
+             speed_mps: float = V_MPS) -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
     None: the default), and ``start_ramp_s`` that one; ``from_rest``: the truth starts at
     rest; ``hold`` (start, length) in s: no updates then, as the gate holds them in a
-    curve."""
+    curve; ``speed_mps``: the vehicle's constant speed."""
     theta = THETA_SEC42.as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
-    Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest)
+    Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps)
     filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
                           start_ramp_s=start_ramp_s)
     held = None if hold is None else holds(len(Y), FS_HZ, [hold[0]], hold[1])
-    est, found, _ = run(Y, filt, held=held)
+    est, found, _ = run(Y, filt, held=held, speed_mps=speed_mps)
     out = []
     for t in at_s:
         e = min(est, key=lambda x: abs(x.t_s - t))
         m, s = np.array(e.mean[:3]), np.array(e.std[:3])
         row: dict[str, Any] = {
-            "study": what, "sensors": sensors, "seed": seed, "t_s": t, "mode": mode,
+            "study": what, "sensors": sensors, "speed_mps": speed_mps, "seed": seed,
+            "t_s": t, "mode": mode,
             "moves_drop_null": filt.config.moves_drop_null,
             "from_rest": from_rest, "start_ramp_s": filt.config.start_ramp_s,
             "hold": None if hold is None else list(hold),
@@ -115,7 +118,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
             "sigma_pct": np.round(100 * s / m, 3).tolist(),
             "detections": len(found)}
         if ml:
-            ml_m, ml_s = ml_fit(Y, sensors, t)
+            ml_m, ml_s = ml_fit(Y, sensors, t, speed_mps)
             row["ml_mean"], row["ml_std"] = ml_m, ml_s
             row["ml_z"] = np.round((np.array(ml_m) - theta) / np.array(ml_s), 3).tolist()
             row["sigma_over_ml"] = np.round(s / np.array(ml_s), 3).tolist()
@@ -126,10 +129,12 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (study, option, sensors, t_s): records; per parameter the share with |z| <= 2, the
     largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
-    def key_of(r: dict[str, Any]) -> tuple[str, bool, float, bool, int, float, str, str]:
+    def key_of(r: dict[str, Any]
+               ) -> tuple[str, bool, float, bool, int, float, str, str, float]:
         return (r["study"], bool(r.get("moves_drop_null", False)),
                 float(r.get("start_ramp_s", 0.0)), bool(r.get("from_rest", False)),
-                r["sensors"], r["t_s"], r.get("mode", "fast"), str(r.get("hold")))
+                r["sensors"], r["t_s"], r.get("mode", "fast"), str(r.get("hold")),
+                float(r.get("speed_mps", V_MPS)))
 
     out = []
     for key in sorted({key_of(r) for r in rows}):
@@ -138,7 +143,7 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"study": key[0], "moves_drop_null": key[1],
                                "start_ramp_s": key[2], "from_rest": key[3],
                                "sensors": key[4], "t_s": key[5], "mode": key[6],
-                               "hold": key[7], "records": len(case)}
+                               "hold": key[7], "speed_mps": key[8], "records": len(case)}
         for i, name in enumerate(PARAM_NAMES):
             row[f"{name}_within_2sigma"] = round(float(np.mean(z[:, i] <= 2.0)), 3)
             row[f"{name}_max_abs_z"] = round(float(z[:, i].max()), 2)
@@ -171,10 +176,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="check times in s (default: paper 5 20, box 10)")
     ap.add_argument("--from-rest", action="store_true",
                     help="the truth starts at rest (default: in stationary vibration)")
+    ap.add_argument("--speed-mps", type=float, default=V_MPS,
+                    help="the vehicle's constant speed, m/s (default: the paper's 42.5)")
     ap.add_argument("--hold", type=float, nargs=2, default=None, metavar=("AT_S", "FOR_S"),
                     help="no updates from AT_S for FOR_S seconds, as the gate holds them in "
                          "a curve (default: none)")
     args = ap.parse_args(argv)
+    if not 0 < args.speed_mps <= 150:
+        ap.error(f"expected 0 < --speed-mps <= 150 m/s, got {args.speed_mps}")
     if args.what == "summary":
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
         for row in summary(rows):
@@ -186,7 +195,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 ml=args.what == "paper" and not args.no_ml,
                                 at_s=args.at_s, moves_drop_null=args.moves_drop_null,
                                 from_rest=args.from_rest, start_ramp_s=args.start_ramp_s,
-                                hold=None if args.hold is None else tuple(args.hold)):
+                                hold=None if args.hold is None else tuple(args.hold),
+                                speed_mps=args.speed_mps):
                 print(json.dumps(row), flush=True)
     return 0
 

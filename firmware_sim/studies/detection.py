@@ -2,7 +2,7 @@
 
 ``python -m firmware_sim.studies.detection faults --seeds 1 2 3`` runs each abrupt fault
 of issue 15 (Csy x0.25 and x0.5, Csay x0.3 and x0.5 at ``--fault-at`` s, other parameters
-nominal, Sec. 4.2 speed) with 3 and 5 sensors and prints one JSON line per run:
+nominal, Sec. 4.2 speed or ``--speed-mps``) with 3 and 5 sensors and prints one JSON line per run:
 
 - ``confirmed_s`` / ``detect_s``: fault to the bank's confirmed CUSUM crossing (0.25 s
   after the crossing) / to its located detection on the right parameter (None: none);
@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection_report import plot, summary
+from firmware_sim.studies.detection_report import PAPER_SPEED_MPS, plot, summary
 from firmware_sim.studies.holds import holds, periodic_holds
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
@@ -55,7 +55,7 @@ from gateway.records import Sample
 from gateway.runtime.pipeline import build_estimator
 
 FS_HZ = 1000.0
-V_MPS = 42.5
+V_MPS = PAPER_SPEED_MPS
 TRACK_REL = 0.15
 FAULTS: tuple[tuple[int, float], ...] = ((0, 0.25), (0, 0.5), (1, 0.3), (1, 0.5))
 """(parameter index, factor) of the abrupt faults."""
@@ -63,16 +63,16 @@ DATA_SEED_OFFSET = 2000
 
 
 def fault_data(parameter: int | None, factor: float, sensors: int, seed: int,
-               seconds: float, fault_at_s: float, noise_scale: float = 1.0
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Truth theta (T, 3) and noisy measurements (T, ny) at 1 kHz; ``noise_scale``
-    multiplies the sensor noise's std (the filter keeps the model's)."""
+               seconds: float, fault_at_s: float, noise_scale: float = 1.0,
+               speed_mps: float = V_MPS) -> tuple[np.ndarray, np.ndarray]:
+    """Truth theta (T, 3) and noisy measurements (T, ny) at 1 kHz and ``speed_mps``;
+    ``noise_scale`` multiplies the sensor noise's std (the filter keeps the model's)."""
     n = int(round(seconds * FS_HZ))
     th = np.repeat(THETA_NOMINAL.as_array()[None], n, 0)
     if parameter is not None:
         th[int(round(fault_at_s * FS_HZ)):, parameter] *= factor
     var = {k: v * noise_scale**2 for k, v in SENSOR_NOISE_VAR.items()}
-    return th, measured(th, np.full(n, V_MPS), FS_HZ, sensor_set(sensors),
+    return th, measured(th, np.full(n, speed_mps), FS_HZ, sensor_set(sensors),
                         np.random.default_rng(DATA_SEED_OFFSET + seed), noise_var=var)
 
 
@@ -122,11 +122,13 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
 
 
-def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None = None
+def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None = None,
+        speed_mps: float = V_MPS
         ) -> tuple[list[Any], list[tuple[float, str, float, float]], Filter]:
     """Estimates every ``every`` samples and the bank's detections (decision time,
-    parameter, located value relative to nominal, confirmation time); samples where
-    ``held`` (T,) is True come without an update, as the gate sends them in a curve."""
+    parameter, located value relative to nominal, confirmation time) on ``Y`` (T, ny)
+    recorded at ``speed_mps``; samples where ``held`` (T,) is True come without an update,
+    as the gate sends them in a curve."""
     found: list[tuple[float, str, float, float]] = []
 
     def samples() -> Iterator[Sample]:
@@ -135,7 +137,7 @@ def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None =
             if filt.n_fault_detections > seen:
                 seen = filt.n_fault_detections
                 found.append(_last(filt))
-            yield Sample(t_s=(k + 1) / FS_HZ, values=Y[k], speed_mps=V_MPS,
+            yield Sample(t_s=(k + 1) / FS_HZ, values=Y[k], speed_mps=speed_mps,
                          update=held is None or not held[k])
 
     est = filt.run(samples(), output_every=every)
@@ -180,14 +182,16 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
               locate_min_s: float | None = None, locate_max_s: float | None = None,
               replay_s: float | None = None, hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
-              dead: Sequence[str] = ()) -> dict[str, Any]:
-    th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale)
+              dead: Sequence[str] = (), speed_mps: float = V_MPS) -> dict[str, Any]:
+    th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale,
+                       speed_mps)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s, replay_s=replay_s),
-                           held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None)
+                           held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None,
+                           speed_mps=speed_mps)
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -202,7 +206,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     judged = alerts(est, act_on_located=False)
     on_it_judged = [t - fault_at_s for t, n, _ in judged if n == name and t > fault_at_s]
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
-            "noise_scale": noise_scale, **_noise_columns(filt),
+            "speed_mps": speed_mps, "noise_scale": noise_scale, **_noise_columns(filt),
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
             "hold_at_s": list(hold_at_s) or None, "hold_s": hold_s if hold_at_s else None,
             "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
@@ -234,16 +238,19 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
                 moves_drop_null: bool | None = None, locate_min_s: float | None = None,
                 locate_max_s: float | None = None, replay_s: float | None = None,
                 hold_every_s: float | None = None,
-                hold_s: float = 3.0, dead: Sequence[str] = ()) -> dict[str, Any]:
-    th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale)
+                hold_s: float = 3.0, dead: Sequence[str] = (),
+                speed_mps: float = V_MPS) -> dict[str, Any]:
+    th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale, speed_mps)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s, replay_s=replay_s),
-                           held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s))
+                           held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s),
+                           speed_mps=speed_mps)
     last = est[-1]
-    return {"what": "nominal", "sensors": sensors, "seed": seed, "mode": mode,
+    return {"what": "nominal", "sensors": sensors, "speed_mps": speed_mps, "seed": seed,
+            "mode": mode,
             "dead": list(dead) or None,
             "noise_scale": noise_scale, **_noise_columns(filt),
             "hold_every_s": hold_every_s, "hold_s": hold_s if hold_every_s else None,
@@ -306,6 +313,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "for --hold-s at every multiple of this, s (default: none)")
     ap.add_argument("--hold-s", type=float, default=3.0,
                     help="length of each hold, s (3: a 1 s curve and the 2 s straight hold)")
+    ap.add_argument("--speed-mps", type=float, default=V_MPS,
+                    help="the vehicle's constant speed, m/s (default: the paper's 42.5; the "
+                         "gate runs the estimator at 15-70)")
     ap.add_argument("--particles", type=int, default=1000)
     ap.add_argument("--dead", nargs="+", default=[], metavar="SENSOR",
                     help="sensors with no value at all (a dead node), e.g. acc_w1 acc_w2")
@@ -333,6 +343,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                  f"phase), got {args.locate_max_s}")
     if args.replay_s is not None and not args.replay_s >= 0:
         ap.error(f"expected --replay-s >= 0 s, got {args.replay_s}")
+    if not 0 < args.speed_mps <= 150:
+        ap.error(f"expected 0 < --speed-mps <= 150 m/s, got {args.speed_mps}")
     if args.what in ("summary", "plot"):
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
         if args.what == "plot":
@@ -352,7 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     locate_max_s=args.locate_max_s,
                                     replay_s=args.replay_s,
                                     hold_every_s=args.hold_every_s, hold_s=args.hold_s,
-                                    dead=args.dead)]
+                                    dead=args.dead, speed_mps=args.speed_mps)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
@@ -363,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   locate_max_s=args.locate_max_s,
                                   replay_s=args.replay_s,
                                   hold_at_s=args.hold_at_s, hold_s=args.hold_s,
-                                  dead=args.dead)
+                                  dead=args.dead, speed_mps=args.speed_mps)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

@@ -13,21 +13,26 @@ import numpy as np
 
 from gateway.model.vehicle import PARAM_NAMES
 
+PAPER_SPEED_MPS = 42.5
+"""The Sec. 4.2 scenario's speed: the studies' default, and that of rows without a
+``speed_mps`` column (written before 2026-11-27)."""
+
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per fault case (parameter, factor, sensors): runs, median and worst detection and
+    """Per fault case (parameter, factor, sensors, speed): runs, median and worst detection and
     tracking delays (s), first alert and ALARM (and the first alert of the policy that
     judges the estimates alone, rows since 2026-11-26), runs detected on the right
     parameter, wrong and early detections. A case's worst is None when some run never
     detected, tracked or alerted."""
     out = []
-    keys = sorted({(r["parameter"], r["factor"], r["sensors"]) for r in rows
-                   if r["what"] == "fault"})
+    def key_of(r: dict[str, Any]) -> tuple[str, float, int, float]:
+        return (r["parameter"], r["factor"], r["sensors"], r.get("speed_mps", PAPER_SPEED_MPS))
+
+    keys = sorted({key_of(r) for r in rows if r["what"] == "fault"})
     for key in keys:
-        case = [r for r in rows if r["what"] == "fault"
-                and (r["parameter"], r["factor"], r["sensors"]) == key]
+        case = [r for r in rows if r["what"] == "fault" and key_of(r) == key]
         row: dict[str, Any] = {"parameter": key[0], "factor": key[1], "sensors": key[2],
-                               "runs": len(case)}
+                               "speed_mps": key[3], "runs": len(case)}
         for name in ("detect_s", "track_s", "alert_s", "alarm_s", "alert_estimates_only_s"):
             vals = [r.get(name) for r in case]
             got = [v for v in vals if v is not None]

@@ -49,12 +49,13 @@ P0_SCALE = 1e3
 """The pre-fault filter starts at x = 0 with this multiple of one sample's Qd."""
 
 
-def model(theta: np.ndarray, sensors: tuple[str, ...], noise_scale: float
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def model(theta: np.ndarray, sensors: tuple[str, ...], noise_scale: float,
+          speed_mps: float = V_MPS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Phi, Qd (17, 17), H (ny, 17) and the sensor-noise variances (ny,) of the truth at
-    ``theta`` (3,), the study's speed and rate."""
-    A = system_matrix(VehicleParams(), theta, V_MPS)
-    d = discretize(A, input_matrix(), track_intensity(AR_PAPER_DEFAULT, V_MPS), 1.0 / FS_HZ)
+    ``theta`` (3,), ``speed_mps`` and the study's rate."""
+    A = system_matrix(VehicleParams(), theta, speed_mps)
+    d = discretize(A, input_matrix(), track_intensity(AR_PAPER_DEFAULT, speed_mps),
+                   1.0 / FS_HZ)
     r = np.array([SENSOR_NOISE_VAR[s] for s in sensors]) * noise_scale**2
     return d.phi, d.qd, output_matrix(A, sensors), r
 
@@ -83,27 +84,29 @@ def exact_filter(phi: np.ndarray, qd: np.ndarray, H: np.ndarray, r: np.ndarray,
 
 def oracle_rows(parameter: int, factor: float, sensors: int, seed: int, *,
                 hypotheses: Sequence[float], fault_at_s: float, after_s: float,
-                noise_scale: float = 1.0, h_nats: float = H_NATS) -> list[dict[str, Any]]:
+                noise_scale: float = 1.0, h_nats: float = H_NATS,
+                speed_mps: float = V_MPS) -> list[dict[str, Any]]:
     """One row per hypothesis: ``cross_s`` (first time after the fault at which the
     summed log-likelihood ratio exceeds ``h_nats``; None: not within ``after_s``),
     ``llr_1s`` and ``llr_end`` (the sum 1 s and ``after_s`` after the fault, nats)."""
     th, Y = fault_data(parameter, factor, sensors, seed, fault_at_s + after_s, fault_at_s,
-                       noise_scale)
+                       noise_scale, speed_mps)
     names = sensor_set(sensors)
     k0 = int(round(fault_at_s * FS_HZ))
-    phi, qd, H, r = model(th[0], names, noise_scale)
+    phi, qd, H, r = model(th[0], names, noise_scale, speed_mps)
     x, P, _ = exact_filter(phi, qd, H, r, np.zeros(len(phi)), qd * P0_SCALE, Y[:k0])
     _, _, ll_pre = exact_filter(phi, qd, H, r, x, P, Y[k0:])
     rows = []
     for f in hypotheses:
         theta = th[0].copy()
         theta[parameter] *= f
-        _, _, ll = exact_filter(*model(theta, names, noise_scale), x, P, Y[k0:])
+        _, _, ll = exact_filter(*model(theta, names, noise_scale, speed_mps), x, P, Y[k0:])
         llr = np.cumsum(ll - ll_pre)
         over = np.nonzero(llr > h_nats)[0]
         n1 = min(len(llr), int(round(FS_HZ))) - 1
         rows.append({"what": "oracle", "parameter": PARAM_NAMES[parameter], "factor": factor,
-                     "hypothesis": f, "sensors": sensors, "seed": seed,
+                     "hypothesis": f, "sensors": sensors, "speed_mps": speed_mps,
+                     "seed": seed,
                      "noise_scale": noise_scale, "fault_at_s": fault_at_s, "h_nats": h_nats,
                      "cross_s": float((over[0] + 1) / FS_HZ) if len(over) else None,
                      "llr_1s": float(llr[n1]), "llr_end": float(llr[-1]),
@@ -126,7 +129,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--after", type=float, default=4.0,
                     help="seconds of data after the fault (4)")
     ap.add_argument("--h-nats", type=float, default=H_NATS)
+    ap.add_argument("--speed-mps", type=float, default=V_MPS,
+                    help="the vehicle's constant speed, m/s (default: the paper's 42.5)")
     args = ap.parse_args(argv)
+    if not 0 < args.speed_mps <= 150:
+        ap.error(f"expected 0 < --speed-mps <= 150 m/s, got {args.speed_mps}")
     if not (args.fault_at > 0 and args.after > 0 and args.h_nats > 0
             and args.noise_scale > 0):
         ap.error(f"expected --fault-at, --after, --h-nats and --noise-scale > 0, got "
@@ -138,7 +145,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for p, f in args.cases:
                 for row in oracle_rows(p, f, ns, seed, hypotheses=args.hypotheses or [f],
                                        fault_at_s=args.fault_at, after_s=args.after,
-                                       noise_scale=args.noise_scale, h_nats=args.h_nats):
+                                       noise_scale=args.noise_scale, h_nats=args.h_nats,
+                                       speed_mps=args.speed_mps):
                     print(json.dumps(row), flush=True)
     return 0
 
