@@ -13,6 +13,11 @@ It is not a strict bound: a CUSUM can cross earlier than the oracle by chance.
 The filters are textbook numpy (17 physical states, Joseph-form update, the truth's
 sensor-noise variances times ``noise_scale``²), independent of the estimator's kernels.
 
+``--against F`` sums the ratio against the model with the faulty parameter at ``F`` times
+its old value instead (from the same state): with the true factor as the hypothesis and
+an alert threshold as ``F``, the first crossing of ``h / 2`` is how soon the data alone
+allow the alert's decision (the value is past the threshold) at the bank's Wald level.
+
 ``python -m firmware_sim.studies.oracle --cases csy:0.5 --sensors 3 --seeds 91 92
 --noise-scale 2 --hypotheses 0.4 0.5 0.6`` prints one JSON line per record and hypothesis.
 A measuring tool, not used by the service.
@@ -85,17 +90,20 @@ def exact_filter(phi: np.ndarray, qd: np.ndarray, H: np.ndarray, r: np.ndarray,
 def oracle_rows(parameter: int, factor: float, sensors: int, seed: int, *,
                 hypotheses: Sequence[float], fault_at_s: float, after_s: float,
                 noise_scale: float = 1.0, h_nats: float = H_NATS,
-                speed_mps: float = V_MPS) -> list[dict[str, Any]]:
+                speed_mps: float = V_MPS, against: float = 1.0) -> list[dict[str, Any]]:
     """One row per hypothesis: ``cross_s`` (first time after the fault at which the
-    summed log-likelihood ratio exceeds ``h_nats``; None: not within ``after_s``),
-    ``llr_1s`` and ``llr_end`` (the sum 1 s and ``after_s`` after the fault, nats)."""
+    summed log-likelihood ratio to the model at ``against`` times the old value (1: the
+    pre-fault model) exceeds ``h_nats``; None: not within ``after_s``), ``llr_1s`` and
+    ``llr_end`` (the sum 1 s and ``after_s`` after the fault, nats)."""
     th, Y = fault_data(parameter, factor, sensors, seed, fault_at_s + after_s, fault_at_s,
                        noise_scale, speed_mps)
     names = sensor_set(sensors)
     k0 = int(round(fault_at_s * FS_HZ))
     phi, qd, H, r = model(th[0], names, noise_scale, speed_mps)
     x, P, _ = exact_filter(phi, qd, H, r, np.zeros(len(phi)), qd * P0_SCALE, Y[:k0])
-    _, _, ll_pre = exact_filter(phi, qd, H, r, x, P, Y[k0:])
+    base = th[0].copy()
+    base[parameter] *= against
+    _, _, ll_pre = exact_filter(*model(base, names, noise_scale, speed_mps), x, P, Y[k0:])
     rows = []
     for f in hypotheses:
         theta = th[0].copy()
@@ -105,8 +113,8 @@ def oracle_rows(parameter: int, factor: float, sensors: int, seed: int, *,
         over = np.nonzero(llr > h_nats)[0]
         n1 = min(len(llr), int(round(FS_HZ))) - 1
         rows.append({"what": "oracle", "parameter": PARAM_NAMES[parameter], "factor": factor,
-                     "hypothesis": f, "sensors": sensors, "speed_mps": speed_mps,
-                     "seed": seed,
+                     "hypothesis": f, "against": against, "sensors": sensors,
+                     "speed_mps": speed_mps, "seed": seed,
                      "noise_scale": noise_scale, "fault_at_s": fault_at_s, "h_nats": h_nats,
                      "cross_s": float((over[0] + 1) / FS_HZ) if len(over) else None,
                      "llr_1s": float(llr[n1]), "llr_end": float(llr[-1]),
@@ -129,6 +137,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--after", type=float, default=4.0,
                     help="seconds of data after the fault (4)")
     ap.add_argument("--h-nats", type=float, default=H_NATS)
+    ap.add_argument("--against", type=float, default=1.0,
+                    help="the factor of the model the ratios are summed against (1: the "
+                         "pre-fault model)")
     ap.add_argument("--speed-mps", type=float, default=V_MPS,
                     help="the vehicle's constant speed, m/s (default: the paper's 42.5)")
     args = ap.parse_args(argv)
@@ -138,6 +149,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             and args.noise_scale > 0):
         ap.error(f"expected --fault-at, --after, --h-nats and --noise-scale > 0, got "
                  f"{args.fault_at}, {args.after}, {args.h_nats}, {args.noise_scale}")
+    if not args.against > 0:
+        ap.error(f"expected --against > 0, got {args.against}")
     if args.hypotheses is not None and not all(f > 0 for f in args.hypotheses):
         ap.error(f"expected positive --hypotheses, got {args.hypotheses}")
     for seed in args.seeds:
@@ -146,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 for row in oracle_rows(p, f, ns, seed, hypotheses=args.hypotheses or [f],
                                        fault_at_s=args.fault_at, after_s=args.after,
                                        noise_scale=args.noise_scale, h_nats=args.h_nats,
-                                       speed_mps=args.speed_mps):
+                                       speed_mps=args.speed_mps, against=args.against):
                     print(json.dumps(row), flush=True)
     return 0
 
