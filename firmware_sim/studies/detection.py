@@ -47,7 +47,7 @@ from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
 from gateway.config import EstimatorConfig
 from gateway.errors import InputError
-from gateway.estimator.faultbank import FaultBankConfig
+from gateway.estimator.faultbank import REDRAWS, FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
@@ -94,12 +94,12 @@ Filter = RBPF | NoiseCheckedStart
 def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    sensor_noise: str = "measured", moves_drop_null: bool | None = None,
                    start_ramp_s: float | None = None, locate_min_s: float | None = None,
-                   locate_max_s: float | None = None, replay_s: float | None = None
-                   ) -> Filter:
+                   locate_max_s: float | None = None, replay_s: float | None = None,
+                   redraw_from: str | None = None) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
     sensor-noise test, the start's likelihood ramp); ``moves_drop_null`` and
     ``start_ramp_s`` override those options of the filter, ``locate_min_s``,
-    ``locate_max_s`` and ``replay_s`` those of its fault bank
+    ``locate_max_s``, ``replay_s`` and ``redraw_from`` those of its fault bank
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`,
     :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
@@ -116,7 +116,8 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
         rbpf = replace(rbpf, faults=replace(
             bank, locate_min_s=bank.locate_min_s if locate_min_s is None else locate_min_s,
             locate_max_s=bank.locate_max_s if locate_max_s is None else locate_max_s,
-            replay_s=bank.replay_s if replay_s is None else replay_s))
+            replay_s=bank.replay_s if replay_s is None else replay_s,
+            redraw_from=bank.redraw_from if redraw_from is None else redraw_from))
     if rbpf == filt.config:
         return filt
     return NoiseCheckedStart(rbpf) if isinstance(filt, NoiseCheckedStart) else RBPF(rbpf)
@@ -157,7 +158,8 @@ def _noise_columns(filt: Filter) -> dict[str, Any]:
 def _bank_columns(filt: Filter) -> dict[str, Any]:
     """The fault bank's location settings (None: no bank)."""
     bank = filt.config.faults
-    return {"locate_min_s": None if bank is None else bank.locate_min_s,
+    return {"redraw_from": None if bank is None else bank.redraw_from,
+            "locate_min_s": None if bank is None else bank.locate_min_s,
             "locate_s": None if bank is None else bank.locate_s,
             "locate_max_s": None if bank is None else bank.locate_max_s,
             "replay_s": None if bank is None else bank.replay_s}
@@ -182,14 +184,16 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
               locate_min_s: float | None = None, locate_max_s: float | None = None,
               replay_s: float | None = None, hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
-              dead: Sequence[str] = (), speed_mps: float = V_MPS) -> dict[str, Any]:
+              dead: Sequence[str] = (), speed_mps: float = V_MPS,
+              redraw_from: str | None = None) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale,
                        speed_mps)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
-                                             locate_max_s=locate_max_s, replay_s=replay_s),
+                                             locate_max_s=locate_max_s, replay_s=replay_s,
+                                             redraw_from=redraw_from),
                            held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None,
                            speed_mps=speed_mps)
     wall = time.perf_counter() - t0
@@ -239,13 +243,14 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
                 locate_max_s: float | None = None, replay_s: float | None = None,
                 hold_every_s: float | None = None,
                 hold_s: float = 3.0, dead: Sequence[str] = (),
-                speed_mps: float = V_MPS) -> dict[str, Any]:
+                speed_mps: float = V_MPS, redraw_from: str | None = None) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale, speed_mps)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
-                                             locate_max_s=locate_max_s, replay_s=replay_s),
+                                             locate_max_s=locate_max_s, replay_s=replay_s,
+                                             redraw_from=redraw_from),
                            held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s),
                            speed_mps=speed_mps)
     last = est[-1]
@@ -313,6 +318,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "for --hold-s at every multiple of this, s (default: none)")
     ap.add_argument("--hold-s", type=float, default=3.0,
                     help="length of each hold, s (3: a 1 s curve and the 2 s straight hold)")
+    ap.add_argument("--redraw-from", choices=REDRAWS, default=None,
+                    help="how a detection redraws its parameter (default: the bank's own; "
+                         "range: log-uniformly over the redraw range, as before "
+                         "2026-11-27)")
     ap.add_argument("--speed-mps", type=float, default=V_MPS,
                     help="the vehicle's constant speed, m/s (default: the paper's 42.5; the "
                          "gate runs the estimator at 15-70)")
@@ -364,7 +373,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     locate_max_s=args.locate_max_s,
                                     replay_s=args.replay_s,
                                     hold_every_s=args.hold_every_s, hold_s=args.hold_s,
-                                    dead=args.dead, speed_mps=args.speed_mps)]
+                                    dead=args.dead, speed_mps=args.speed_mps,
+                                    redraw_from=args.redraw_from)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
@@ -375,7 +385,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   locate_max_s=args.locate_max_s,
                                   replay_s=args.replay_s,
                                   hold_at_s=args.hold_at_s, hold_s=args.hold_s,
-                                  dead=args.dead, speed_mps=args.speed_mps)
+                                  dead=args.dead, speed_mps=args.speed_mps,
+                                  redraw_from=args.redraw_from)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

@@ -47,8 +47,11 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   range (three grid steps or more away) by ``h / 2``: for a correct model ``exp(-h /
   2)`` bounds the chance that a value that far from the truth ever leads it by that much
   (Wald), so the redraw range then holds the truth. The estimator then redraws that
-  parameter of every particle over :meth:`FaultBank.redraw_range` and gives every
-  particle the best filter's state.
+  parameter of every particle (:meth:`FaultBank.redraw`) and gives every particle the
+  best filter's state. Since 2026-11-27 (``redraw_from = "likelihood"``) the new values
+  follow the grid's summed likelihood, so the evidence since the change carries into the
+  cloud instead of being gathered again from a flat start over the redraw range
+  (:data:`DEFENSIVE_SHARE` of them still spread over that range).
 
 Life cycle: the bank is idle until the cloud has ``start_after_s`` of updated data
 since its filters started and every parameter's posterior std is within
@@ -79,6 +82,7 @@ from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.kalman import from_lanes, kf_block, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.lookback import SNAP_EVERY, Lookback
+from gateway.estimator.particles import draw_log_cells, draw_log_uniform, log_cell_density
 from gateway.estimator.steady import (
     NullVectors,
     SteadyGains,
@@ -101,6 +105,13 @@ change"). A damper change leaves that set-up where it was."""
 REDRAW_STEPS = 3
 """Location grid steps either side of the located value over which the detected
 parameter is redrawn (:meth:`FaultBank.redraw_range`)."""
+DEFENSIVE_SHARE = 0.1
+"""Share of a likelihood redraw's particles spread log-uniformly over the redraw range
+(:meth:`FaultBank.redraw`), weighted so that the cloud still follows the likelihood: a
+defensive mixture (Hesterberg 1995), which keeps particles near the truth if the grid's
+profile likelihood is off (another parameter, the model)."""
+REDRAWS = ("likelihood", "range")
+"""How a detection redraws its parameter (:attr:`FaultBankConfig.redraw_from`)."""
 
 
 @dataclass(frozen=True)
@@ -127,7 +138,9 @@ class FaultBankConfig:
     their steady covariance (module docstring; measured in docs/estimator.md, "A fair
     location"); ``replay_s``: the longest look-back (s) over which the location grid
     replays from the likeliest change time (:mod:`gateway.estimator.lookback`; 0: the
-    grid starts at the confirmation, as before 2026-11-27).
+    grid starts at the confirmation, as before 2026-11-27); ``redraw_from``: how the
+    detected parameter is redrawn (:meth:`FaultBank.redraw`; "range": log-uniformly
+    over the redraw range, as before 2026-11-27).
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -142,8 +155,12 @@ class FaultBankConfig:
     locate_max_s: float = 3.0
     locate_cov_scale: float = 100.0
     replay_s: float = 2.0
+    redraw_from: str = "likelihood"
 
     def __post_init__(self) -> None:
+        if self.redraw_from not in REDRAWS:
+            raise EstimatorError(f"expected redraw_from from {REDRAWS}, "
+                                 f"got {self.redraw_from!r}")
         f = np.asarray(self.factors, dtype=float)
         if f.ndim != 1 or len(f) == 0 or np.any(~(f > 0)) or np.any(f == 1.0) \
                 or len(set(self.factors)) != len(f):
@@ -168,8 +185,9 @@ class FaultBankConfig:
 class Detection:
     """A located change: parameter index, the best factor of the location grid and that
     grid's ratio between neighbours, the reference value, the data time of the decision
-    and of the confirmed CUSUM crossing (``confirm_s`` after it), and the best filter's
-    state (16,) at the decision."""
+    and of the confirmed CUSUM crossing (``confirm_s`` after it), the best filter's
+    state (16,) at the decision, and the grid's factors (J,) with their log-likelihood
+    ratios to the reference (J,) summed over the location, nats."""
 
     parameter: int
     factor: float
@@ -178,6 +196,8 @@ class Detection:
     state: np.ndarray
     confirmed_s: float
     step: float
+    grid: np.ndarray
+    llr: np.ndarray
 
 
 _NO_RESET = np.zeros((NZ, NZ))
@@ -652,7 +672,7 @@ class FaultBank:
         det = Detection(parameter=p, factor=float(grid[best]), t_s=t_s,
                         reference=float(self.ref[p]), state=self._state_of(1 + best),
                         confirmed_s=float(self.vec[_CONF_T]),
-                        step=float(grid[1] / grid[0]))
+                        step=float(grid[1] / grid[0]), grid=grid, llr=self.g.copy())
         self.vec[_LAST_T], self.vec[_LAST_P], self.vec[_LAST_F] = t_s, p, det.factor
         self.vec[_LAST_V] = det.factor * det.reference
         self.vec[_COUNT] += 1
@@ -697,6 +717,35 @@ class FaultBank:
     def taken(self) -> int:
         """Samples consumed by the last :meth:`scan`."""
         return self._taken
+
+    def redraw(self, det: Detection, rng: np.random.Generator, n: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """New log values (n,) of the detected parameter and their log weights (n,).
+
+        ``redraw_from = "range"``: log-uniform over :meth:`redraw_range`, equal weights.
+        ``"likelihood"``: the grid's summed likelihood as a density in log theta, constant
+        over each grid value's cell (half a step either side; the end cells reach
+        :data:`REDRAW_STEPS` steps beyond the grid, as the redraw range may), drawn for all
+        but :data:`DEFENSIVE_SHARE` of the particles, the rest log-uniform over the redraw
+        range; each weighted by that density over the mixture's, so the weighted cloud
+        follows the likelihood."""
+        lo, hi = self.redraw_range(det)
+        if self.config.redraw_from == "range":
+            return (draw_log_uniform(rng, np.array([lo]), np.array([hi]), n)[:, 0],
+                    np.zeros(n))
+        half = 0.5 * np.log(det.step)
+        mid = np.log(det.grid * det.reference)
+        edges = np.concatenate(([mid[0] - REDRAW_STEPS * 2 * half], mid[:-1] + half,
+                                [mid[-1] + REDRAW_STEPS * 2 * half]))
+        n_wide = int(round(DEFENSIVE_SHARE * n))
+        z = np.concatenate((draw_log_cells(rng, edges, det.llr, n - n_wide),
+                            draw_log_uniform(rng, np.array([lo]), np.array([hi]),
+                                             n_wide)[:, 0]))
+        p = log_cell_density(z, edges, det.llr)
+        wide = np.where((z >= np.log(lo)) & (z <= np.log(hi)),
+                        -np.log(np.log(hi / lo)), -np.inf)
+        q = np.logaddexp(np.log1p(-DEFENSIVE_SHARE) + p, np.log(DEFENSIVE_SHARE) + wide)
+        return z, p - q
 
     @staticmethod
     def redraw_range(det: Detection) -> tuple[float, float]:

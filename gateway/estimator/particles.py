@@ -52,6 +52,36 @@ def draw_log_uniform(rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray,
     return np.log(lo) + (np.log(hi) - np.log(lo)) * u
 
 
+def draw_log_cells(rng: np.random.Generator, edges_log: np.ndarray, log_mass: np.ndarray,
+                   n: int) -> np.ndarray:
+    """n points (n,) from the density that is constant within each cell
+    ``[edges_log[j], edges_log[j + 1])`` (J + 1,) of a log scale and holds mass
+    proportional to ``exp(log_mass[j])`` (J,) there, evenly spread (inverse CDF of
+    scrambled Halton points); :func:`log_cell_density` is its density."""
+    width = np.diff(edges_log)
+    mass = np.exp(log_mass - np.max(log_mass))
+    mass /= mass.sum()
+    cdf = np.concatenate(([0.0], np.cumsum(mass)))
+    u = _unit_points(rng, n, 1)[:, 0]
+    j = np.minimum(np.searchsorted(cdf, u, side="right") - 1, len(mass) - 1)
+    j = np.where(mass[j] > 0, j, np.argmax(mass))      # u on a zero-mass boundary
+    frac = (u - cdf[j]) / np.where(mass[j] > 0, mass[j], 1.0)
+    return edges_log[j] + np.clip(frac, 0.0, 1.0) * width[j]
+
+
+def log_cell_density(z: np.ndarray, edges_log: np.ndarray, log_mass: np.ndarray
+                     ) -> np.ndarray:
+    """The log density (n,) of :func:`draw_log_cells`'s density at points ``z`` (n,);
+    -inf outside the cells."""
+    width = np.diff(edges_log)
+    mass = np.exp(log_mass - np.max(log_mass))
+    mass /= mass.sum()
+    j = np.clip(np.searchsorted(edges_log, z, side="right") - 1, 0, len(mass) - 1)
+    inside = (z >= edges_log[0]) & (z <= edges_log[-1])
+    with np.errstate(divide="ignore"):
+        return np.where(inside, np.log(mass[j] / width[j]), -np.inf)
+
+
 def systematic(weights: np.ndarray, u: float) -> np.ndarray:
     """Ancestor indices (N,) for normalised weights (N,) and one uniform u in [0, 1)."""
     n = len(weights)

@@ -761,11 +761,11 @@ class RBPF:
         znew = pt.liu_west_move(self.rng, self.z, w, anc, delta=cfg.delta,
                                 steps=self.since_move, floor_log=floor,
                                 walk_var_log=self._walk_var_log())
+        logw_new = np.zeros(cfg.n_particles)
         if fault is not None:
             assert self._bank is not None
-            f_lo, f_hi = self._bank.redraw_range(fault)
-            znew[:, fault.parameter] = pt.draw_log_uniform(
-                self.rng, np.array([f_lo]), np.array([f_hi]), cfg.n_particles)[:, 0]
+            znew[:, fault.parameter], logw_new = self._bank.redraw(fault, self.rng,
+                                                                   cfg.n_particles)
             after_reseed(self.monitor_state)
         if alarm:
             self.n_detections += 1
@@ -782,7 +782,7 @@ class RBPF:
             # optionally less the static-yaw component its new theta would turn into a
             # false transient (steady.without_null; RBPFConfig.moves_drop_null)
             self._X = to_lanes(X if v0_anc is None else without_null(X, v0_anc))
-        self.logw = np.zeros(cfg.n_particles)
+        self.logw = logw_new
         self.since_move = 0
         self.updated_since_move = 0
         self.n_resamples += 1
@@ -1013,8 +1013,10 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
         # location phase, and no more
         bank.setdefault("locate_min_s", bank.get("locate_s", FaultBankConfig.locate_s))
         bank.setdefault("locate_max_s", bank.get("locate_s", FaultBankConfig.locate_s))
-        # ... and before the look-back, located from the confirmation on
+        # ... and before the look-back, located from the confirmation on, and redrew
+        # over the range
         bank.setdefault("replay_s", 0.0)
+        bank.setdefault("redraw_from", "range")
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
