@@ -11,11 +11,18 @@ import pytest
 
 from firmware_sim.studies.detection import FS_HZ, V_MPS, fault_data, fault_row, service_filter
 from gateway.errors import EstimatorError
-from gateway.estimator.faultbank import _HOLD, FaultBank, FaultBankConfig, _cusum_path
+from gateway.estimator.faultbank import (
+    _HOLD,
+    Detection,
+    FaultBank,
+    FaultBankConfig,
+    _cusum_path,
+)
 from gateway.estimator.kalman import from_lanes, to_lanes
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.model.coordinates import NZ
+from gateway.model.vehicle import AR_PAPER_DEFAULT
 from gateway.records import Sample
 
 
@@ -35,7 +42,7 @@ def test_vectorised_cusum_is_pages_recursion() -> None:
                                  dict(factors=(0.5, 0.5)), dict(factors=(-0.5,)),
                                  dict(h_nats=0.0), dict(locate_s=-1.0),
                                  dict(locate_cov_scale=0.5), dict(locate_max_s=0.5),
-                                 dict(replay_s=-1.0)])
+                                 dict(replay_s=-1.0), dict(redraw_from="prior")])
 def test_bad_bank_settings_are_refused(bad: dict) -> None:
     with pytest.raises(EstimatorError, match="expected"):
         FaultBankConfig(**bad)
@@ -154,8 +161,10 @@ def test_checkpoint_while_watching_keeps_the_look_back() -> None:
     for key in [key for key in arrays if key.startswith("bank_lb_")]:
         del arrays[key]
     del meta["config"]["faults"]["replay_s"]
+    del meta["config"]["faults"]["redraw_from"]
     c = RBPF.restore(ckpt.pack(meta, arrays))
     assert c.config.faults is not None and c.config.faults.replay_s == 0.0
+    assert c.config.faults.redraw_from == "range"
     c.run(smp[k:], output_every=50)
 
 
@@ -398,3 +407,49 @@ def test_a_hold_raises_no_false_detection(mode: str) -> None:
     mean, std = np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])
     assert est[-1].t_s == 16.0
     assert np.all(np.abs(mean - truth) <= 3 * std), (mean - truth) / std
+
+
+def _detection(llr: np.ndarray, reference: float = 40e3) -> Detection:
+    """A Csy drop located by a grid of the default bank with summed ratios ``llr`` (J,)."""
+    bank = FaultBank(FaultBankConfig(), 3, FS_HZ, AR_PAPER_DEFAULT)
+    grid = bank.locate_grid(side=-1.0)
+    best = int(np.argmax(llr))
+    return Detection(parameter=0, factor=float(grid[best]), t_s=10.0, reference=reference,
+                     state=np.zeros(NZ), confirmed_s=9.0, step=float(grid[1] / grid[0]),
+                     grid=grid, llr=llr)
+
+
+@pytest.mark.parametrize("peak_nats", [2.0, 40.0])
+def test_the_redraw_follows_the_location_likelihood(peak_nats: float) -> None:
+    """The weighted redraw is the grid's likelihood as a density in log theta, constant
+    over each value's cell: its weighted cell shares match exp(llr) normalised, each cell
+    is spread evenly, and a tenth of the points still cover the redraw range."""
+    bank = FaultBank(FaultBankConfig(), 3, FS_HZ, AR_PAPER_DEFAULT)
+    grid = bank.locate_grid(side=-1.0)
+    llr = -peak_nats * (np.arange(len(grid)) - 6.3) ** 2 / 4.0
+    det = _detection(llr)
+    z, logw = bank.redraw(det, np.random.default_rng(5), 20000)
+    w = np.exp(logw - logw.max())
+    w /= w.sum()
+    half = 0.5 * np.log(det.step)
+    mid = np.log(grid * det.reference)
+    cell = np.clip(np.searchsorted(mid[:-1] + half, z), 0, len(grid) - 1)
+    want = np.exp(llr - llr.max())
+    want /= want.sum()
+    got = np.bincount(cell, weights=w, minlength=len(grid))
+    np.testing.assert_allclose(got, want, atol=0.01)
+    lo, hi = FaultBank.redraw_range(det)
+    wide = (z >= np.log(lo)) & (z <= np.log(hi))
+    assert wide.mean() >= 0.1 and np.all(np.isfinite(logw))
+    # inside the best cell the points are spread evenly (the density is flat there)
+    inner = z[cell == 6] - (mid[6] - half)
+    assert abs(np.mean(inner) / (2 * half) - 0.5) < 0.02
+
+
+def test_a_range_redraw_is_log_uniform_with_equal_weights() -> None:
+    bank = FaultBank(FaultBankConfig(redraw_from="range"), 3, FS_HZ, AR_PAPER_DEFAULT)
+    det = _detection(np.linspace(0.0, 30.0, 15))
+    z, logw = bank.redraw(det, np.random.default_rng(6), 4000)
+    lo, hi = FaultBank.redraw_range(det)
+    assert np.all(logw == 0.0) and z.min() >= np.log(lo) and z.max() <= np.log(hi)
+    assert abs(np.mean(z) - 0.5 * np.log(lo * hi)) < 0.01 * np.log(hi / lo)

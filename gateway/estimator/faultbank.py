@@ -482,14 +482,14 @@ class FaultBank:
         self._part = n
         j = self._located_row(d, left)
         if j is None:
-            self.g += d.sum(axis=0)
+            self.g = _running(self.g, d)[-1]
             self.vec[_LEFT] = left - n
             return None
         if j < n - 1:                          # the early stop: the states up to it only
             self.x, self.P = x0, P0
             self._step(Y[:j + 1], full[:j + 1])
             self._part = j + 1
-        self.g += d[:j + 1].sum(axis=0)
+        self.g = _running(self.g, d[:j + 1])[-1]
         return self._located(t0_s + j * dt_s)
 
     def _step(self, Y: np.ndarray, full: np.ndarray) -> np.ndarray:
@@ -636,7 +636,7 @@ class FaultBank:
         n_loc = self._locate_samples(self.config.locate_s)
         first = max(0, min(n_min, n_loc) - done - 1)
         if first < k:                         # a stop can fire in this block
-            rows = (self.g[None] + np.cumsum(d[:k], axis=0))[first:]
+            rows = _running(self.g, d[:k])[first:]
             n = done + first + 1 + np.arange(len(rows))
             best = np.argmax(rows, axis=1)
             lead = rows[np.arange(len(rows)), best]
@@ -773,6 +773,13 @@ class FaultBank:
 def _around(value: float, step: float) -> tuple[float, float]:
     """(lo, hi): :data:`REDRAW_STEPS` grid steps of ratio ``step`` either side of ``value``."""
     return value / step**REDRAW_STEPS, value * step**REDRAW_STEPS
+
+
+def _running(g0: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The sums ``g0 + d_1 + ... + d_t`` (k, J) for every row of ``d`` (k, J), added one
+    sample at a time, so that the location's sums, which the likelihood redraw reads, are
+    the same bits whichever blocks the samples came in."""
+    return np.cumsum(np.concatenate((g0[None], d)), axis=0)[1:]
 
 
 def _cusum_path(g0: np.ndarray, d: np.ndarray) -> np.ndarray:
