@@ -41,7 +41,8 @@ class Sample:
 class Located:
     """A change the estimator's fault bank decided (:mod:`gateway.estimator.faultbank`)
     at data time ``t_s``: ``parameter`` (a :data:`PARAM_NAMES` name), its located value
-    ``rel`` and the range ``rel_lo``..``rel_hi`` the particles were redrawn over, all
+    ``rel`` and its redraw range ``rel_lo``..``rel_hi`` (three location-grid steps either
+    side: :meth:`gateway.estimator.faultbank.FaultBank.redraw_range`), all
     relative to nominal. The bank's CUSUM crossed its threshold and the location beat
     the old value by half that, so the alert policy may act on it at once
     (docs/alerts.md, "Located changes")."""

@@ -752,8 +752,9 @@ class RBPF:
                        ) -> None:
         """Resample and move; an innovation-monitor ``alarm`` also re-draws part of the
         cloud and restarts every filter; a bank ``fault`` re-draws the changed parameter
-        of every particle over the detected range, and every particle takes the winning
-        hypothesis filter's state (the vehicle's state does not jump with a parameter)."""
+        of every particle, weighted (:meth:`FaultBank.redraw`), and every particle takes
+        the winning hypothesis filter's state (the vehicle's state does not jump with a
+        parameter)."""
         cfg = self.config
         floor = self._floor_log()
         anc = pt.systematic(w, float(self.rng.random()))
