@@ -104,6 +104,10 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
              _speed(V_PAPER)),
     Scenario("lateral-failing", "lateral damper fails at half-time: Csy steps 40 -> 10 kNs/m",
              60.0, _scaled(0, _step(0.5, 0.25)), _speed(V_PAPER)),
+    Scenario("lateral-failing-accelerating", "lateral damper fails at half-time while the "
+             "train accelerates from 25 to 40 m/s over the run (0.5 m/s2 over 30 s): Csy steps "
+             "40 -> 10 kNs/m", 30.0, _scaled(0, _step(0.5, 0.25)),
+             lambda f: 25.0 + 15.0 * np.asarray(f)),
     Scenario("antiyaw-failing", "anti-yaw dampers fail at half-time: Csay steps to 25 % of "
              "nominal", 60.0, _scaled(1, _step(0.5, 0.25)), _speed(V_PAPER)),
     Scenario("conicity-rising", "worn wheels: conicity ramps 0.15 -> 0.40 between 20 % and "

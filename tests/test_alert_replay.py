@@ -48,6 +48,24 @@ def test_failed_lateral_damper_alerts_within_5_s_and_alarms_within_10_s(cli, tmp
 
 
 @pytest.mark.slow
+def test_a_damper_failing_while_the_train_accelerates_is_alerted(cli, tmp_path):
+    """Csy 40 -> 10 kNs/m at half-time while the speed ramps 25 -> 40 m/s, so the model,
+    the steady gains and the fault bank's look-back restart at every 0.2 % of speed: the
+    first alert on Csy within 5 s, the ALARM within 10 s, nothing before the fault or on
+    another parameter, and Csy within 15 % of its new value at the end."""
+    report = _replay_alerts(cli, tmp_path, "lateral-failing-accelerating", 30.0, None)
+    t_fail = 15.0
+    t0 = report["history"][0]["t_s"]
+    raised = [a for a in report["alerts"] if a["state"] == "raised"]
+    assert raised and all(a["parameter"] == "csy_ns_per_m" for a in raised), raised
+    assert all(a["t_s"] - t0 > t_fail for a in report["alerts"])
+    assert raised[0]["t_s"] - t0 - t_fail <= 5.0, raised[0]
+    alarms = [a for a in raised if a["severity"] == "alarm"]
+    assert alarms and alarms[0]["t_s"] - t0 - t_fail <= 10.0, alarms
+    assert abs(report["estimates"]["csy_ns_per_m"]["mean"] / 10e3 - 1) < 0.15
+
+
+@pytest.mark.slow
 def test_ten_nominal_minutes_raise_no_alert(cli, tmp_path):
     report = _replay_alerts(cli, tmp_path, "nominal", 600.0, 250)
     assert report["alerts"] == []
