@@ -1,8 +1,9 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (about 735): the watch, confirm and locate phases share one state vector
+Over 400 lines (about 790): the watch, confirm and locate phases share one state vector
 and one set of filters; splitting them would pass that state around. What the location
-replays is kept by :mod:`gateway.estimator.lookback`.
+replays is kept by :mod:`gateway.estimator.lookback`; the redraw's densities are
+:mod:`gateway.estimator.particles`.
 
 The particle cloud learns a parameter change only as fast as its roughening lets it
 crawl, and the innovation monitor (:mod:`gateway.estimator.monitor`) tests the cloud's

@@ -59,8 +59,7 @@ def draw_log_cells(rng: np.random.Generator, edges_log: np.ndarray, log_mass: np
     proportional to ``exp(log_mass[j])`` (J,) there, evenly spread (inverse CDF of
     scrambled Halton points); :func:`log_cell_density` is its density."""
     width = np.diff(edges_log)
-    mass = np.exp(log_mass - np.max(log_mass))
-    mass /= mass.sum()
+    mass, _ = normalise_log(log_mass)
     cdf = np.concatenate(([0.0], np.cumsum(mass)))
     u = _unit_points(rng, n, 1)[:, 0]
     j = np.minimum(np.searchsorted(cdf, u, side="right") - 1, len(mass) - 1)
@@ -74,8 +73,7 @@ def log_cell_density(z: np.ndarray, edges_log: np.ndarray, log_mass: np.ndarray
     """The log density (n,) of :func:`draw_log_cells`'s density at points ``z`` (n,);
     -inf outside the cells."""
     width = np.diff(edges_log)
-    mass = np.exp(log_mass - np.max(log_mass))
-    mass /= mass.sum()
+    mass, _ = normalise_log(log_mass)
     j = np.clip(np.searchsorted(edges_log, z, side="right") - 1, 0, len(mass) - 1)
     inside = (z >= edges_log[0]) & (z <= edges_log[-1])
     with np.errstate(divide="ignore"):
