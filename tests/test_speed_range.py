@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import pytest
 
+from firmware_sim.scenarios import V_PAPER
 from firmware_sim.studies.detection import fault_row, nominal_row
-from firmware_sim.studies.detection_report import PAPER_SPEED_MPS, summary
+from firmware_sim.studies.detection_report import summary
 
 
 def test_the_detection_summary_keeps_speeds_apart() -> None:
@@ -27,7 +28,7 @@ def test_the_detection_summary_keeps_speeds_apart() -> None:
 
     out = summary([row(20.0, 4.0), row(20.0, 6.0), row(None, 1.0), row(42.5, 2.0)])
     assert [(c["speed_mps"], c["runs"], c["alert_s_median"], c["alert_s_worst"])
-            for c in out] == [(20.0, 2, 5.0, 6.0), (PAPER_SPEED_MPS, 2, 1.5, 2.0)]
+            for c in out] == [(20.0, 2, 5.0, 6.0), (V_PAPER, 2, 1.5, 2.0)]
 
 
 @pytest.mark.slow

@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection_report import PAPER_SPEED_MPS, plot, summary
+from firmware_sim.scenarios import V_PAPER
+from firmware_sim.studies.detection_report import plot, summary
 from firmware_sim.studies.holds import holds, periodic_holds
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
 from gateway.alerts.policy import AlertPolicy, PolicyConfig
@@ -55,7 +56,7 @@ from gateway.records import Sample
 from gateway.runtime.pipeline import build_estimator
 
 FS_HZ = 1000.0
-V_MPS = PAPER_SPEED_MPS
+V_MPS = V_PAPER
 TRACK_REL = 0.15
 FAULTS: tuple[tuple[int, float], ...] = ((0, 0.25), (0, 0.5), (1, 0.3), (1, 0.5))
 """(parameter index, factor) of the abrupt faults."""

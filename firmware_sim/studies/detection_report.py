@@ -11,11 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from firmware_sim.scenarios import V_PAPER
 from gateway.model.vehicle import PARAM_NAMES
-
-PAPER_SPEED_MPS = 42.5
-"""The Sec. 4.2 scenario's speed: the studies' default, and that of rows without a
-``speed_mps`` column (written before 2026-11-27)."""
 
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -26,7 +23,8 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     detected, tracked or alerted."""
     out = []
     def key_of(r: dict[str, Any]) -> tuple[str, float, int, float]:
-        return (r["parameter"], r["factor"], r["sensors"], r.get("speed_mps", PAPER_SPEED_MPS))
+        # rows written before 2026-11-27 have no speed: they ran at the paper's
+        return (r["parameter"], r["factor"], r["sensors"], r.get("speed_mps", V_PAPER))
 
     keys = sorted({key_of(r) for r in rows if r["what"] == "fault"})
     for key in keys:
