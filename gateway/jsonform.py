@@ -15,7 +15,7 @@ read back as NaN (:func:`number`). Enums are written by name (``"ALARM"``, ``"RA
 - estimate: ``{"t_s", "ess", "updated", "provisional", "v_sy_mps", "v_say_mps", "params": {name:
   {"mean", "std"}}, "located"}`` (:func:`params_json` is the ``params`` part alone;
   ``located`` null, or the fault bank's change ``{"t_s", "parameter", "rel", "rel_lo",
-  "rel_hi"}``, :func:`located_json`).
+  "rel_hi", "like_lo", "like_hi"}``, :func:`located_json`).
 """
 
 from __future__ import annotations
@@ -81,5 +81,6 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
 def located_json(loc: Located) -> dict[str, Any]:
     """The JSON form of a fault-bank change (values relative to nominal)."""
     return {"t_s": finite(loc.t_s), "parameter": loc.parameter, "rel": finite(loc.rel),
-            "rel_lo": finite(loc.rel_lo), "rel_hi": finite(loc.rel_hi)}
+            "rel_lo": finite(loc.rel_lo), "rel_hi": finite(loc.rel_hi),
+            "like_lo": finite(loc.like_lo), "like_hi": finite(loc.like_hi)}
 

@@ -42,16 +42,22 @@ class Located:
     """A change the estimator's fault bank decided (:mod:`gateway.estimator.faultbank`)
     at data time ``t_s``: ``parameter`` (a :data:`PARAM_NAMES` name), its located value
     ``rel`` and its redraw range ``rel_lo``..``rel_hi`` (three location-grid steps either
-    side: :meth:`gateway.estimator.faultbank.FaultBank.redraw_range`), all
-    relative to nominal. The bank's CUSUM crossed its threshold and the location beat
-    the old value by half that, so the alert policy may act on it at once
-    (docs/alerts.md, "Located changes")."""
+    side: :meth:`gateway.estimator.faultbank.FaultBank.redraw_range`), and its likelihood
+    interval ``like_lo``..``like_hi`` (the values the location could not tell from the
+    located one by half the bank's threshold:
+    :meth:`gateway.estimator.faultbank.FaultBank.likely_range`; 0 or inf where it is
+    open), all relative to nominal. The bank's CUSUM crossed its threshold and the
+    location beat the old value by half that, so the alert policy may act on it at once
+    where the whole likelihood interval is past a threshold (docs/alerts.md, "Located
+    changes")."""
 
     t_s: float
     parameter: str
     rel: float
     rel_lo: float
     rel_hi: float
+    like_lo: float
+    like_hi: float
 
 
 @dataclass(frozen=True)

@@ -30,8 +30,10 @@ def test_failed_lateral_damper_alerts_within_5_s_and_alarms_within_10_s(cli, tmp
     """Csy 40 -> 10 kNs/m at half-time, through the whole replay path at the service's
     defaults: the first alert on Csy within 5 s of the step and the ALARM within 10 s
     (issue 15's worst-case targets; before the fault bank: an ALARM within 15 s), nothing
-    before the fault, nothing on another parameter. The first alert is the fault bank's
-    located change, carried by the estimate from the worker to the policy
+    before the fault, nothing on another parameter. The fault bank's located change is
+    carried by the estimates from the worker to the policy and to the JSON Lines, its
+    likelihood interval holds the truth, and the first alert is that change, raised at
+    once, exactly when the interval lies wholly below the ADVISORY threshold
     (docs/alerts.md "Located changes")."""
     report = _replay_alerts(cli, tmp_path, "lateral-failing", 50.0, None)
     t_fail = 25.0                                     # the step is at half-time
@@ -40,7 +42,13 @@ def test_failed_lateral_damper_alerts_within_5_s_and_alarms_within_10_s(cli, tmp
     assert raised and all(a["parameter"] == "csy_ns_per_m" for a in raised), raised
     assert all(a["t_s"] - t0 > t_fail for a in report["alerts"])   # nothing before the fault
     assert raised[0]["t_s"] - t0 - t_fail <= 5.0, raised[0]
-    assert "located by the fault bank" in raised[0]["message"], raised[0]
+    lines = [json.loads(x) for x in (tmp_path / "r.jsonl").read_text().splitlines()]
+    located = [x["located"] for x in lines if x["type"] == "estimate" and "located" in x]
+    assert located and located[0]["parameter"] == "csy_ns_per_m", located[:1]
+    first = located[0]
+    assert first["like_lo"] <= 0.25 <= first["like_hi"], first
+    assert ("located by the fault bank" in raised[0]["message"]) == (first["like_hi"] <= 0.75), (
+        first, raised[0])
     alarms = [a for a in raised if a["severity"] == "alarm"]
     assert alarms and alarms[0]["t_s"] - t0 - t_fail <= 10.0, alarms
     final = report["estimates"]["csy_ns_per_m"]["mean"]

@@ -333,16 +333,20 @@ def test_a_sure_run_broken_by_one_unsure_estimate_starts_again() -> None:
                          (0.9, "csy_ns_per_m", "ALARM", "RAISED")]
 
 
-def located(t_s: float, parameter: str, rel: float, rel_lo: float, rel_hi: float,
+def located(t_s: float, parameter: str, rel: float, like_lo: float, like_hi: float,
+            rel_lo: float | None = None, rel_hi: float | None = None,
             **kw: float) -> Estimate:
-    """An estimate (wide: 25 % of nominal, never sure) that reports a fault-bank change."""
-    return dataclasses.replace(est(t_s, std_rel=0.25, **kw),
-                               located=Located(t_s, parameter, rel, rel_lo, rel_hi))
+    """An estimate (wide: 25 % of nominal, never sure) that reports a fault-bank change
+    with likelihood interval ``like_lo``..``like_hi`` (its redraw range: the same, or
+    ``rel_lo``..``rel_hi``)."""
+    return dataclasses.replace(est(t_s, std_rel=0.25, **kw), located=Located(
+        t_s, parameter, rel, like_lo if rel_lo is None else rel_lo,
+        like_hi if rel_hi is None else rel_hi, like_lo, like_hi))
 
 
 def test_a_located_change_past_a_threshold_raises_with_its_estimate() -> None:
-    """The bank located Csy at 0.49 of nominal, redrawn over 0.32-0.74: the whole range is
-    below the ADVISORY threshold (0.75), not the WARNING one (0.55), so an ADVISORY at
+    """The bank located Csy at 0.49 of nominal, likely within 0.32-0.74: that whole
+    interval is below the ADVISORY threshold (0.75), not the WARNING one (0.55), so an ADVISORY at
     once, though the estimate's own std (25 %) would never be sure; the next estimates
     carry the same change and raise nothing more. Judged on the estimates alone, it
     waits."""
@@ -372,6 +376,21 @@ def test_a_located_change_raises_the_level_its_whole_range_is_past(
     ev = p.step(located(5.0, parameter, (lo * hi) ** 0.5, lo, hi))
     assert [a.severity.name for a in ev] == ([want] if want else [])
     assert all(a.parameter == parameter for a in ev)
+
+
+@pytest.mark.parametrize("like, redraw, want", [
+    ((0.16, 0.86), (0.33, 0.74), None),             # 2 x noise, seed 707: the range claims
+    ((0.43, 0.66), (0.33, 0.76), "ADVISORY"),       # 5 sensors: the likelihood is narrower
+])
+def test_a_located_change_is_judged_on_its_likelihood_interval_not_its_redraw_range(
+        like: tuple[float, float], redraw: tuple[float, float], want: str | None) -> None:
+    """The redraw range is a fixed three grid steps; what the data allow is the likelihood
+    interval, which can be wider (noisy data, 3 sensors) or narrower (5 sensors)."""
+    p = AlertPolicy()
+    ev = p.step(located(5.0, "csy_ns_per_m", 0.5, *like, *redraw))
+    assert [a.severity.name for a in ev] == ([want] if want else [])
+    if want:
+        assert f"likely {like[0]:.3f}-{like[1]:.3f}" in ev[0].message
 
 
 def test_a_located_change_on_another_parameter_raises_nothing_here() -> None:

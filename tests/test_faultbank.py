@@ -13,6 +13,7 @@ from firmware_sim.studies.detection import FS_HZ, V_MPS, fault_data, fault_row, 
 from gateway.errors import EstimatorError
 from gateway.estimator.faultbank import (
     _HOLD,
+    LIKELY_NATS,
     Detection,
     FaultBank,
     FaultBankConfig,
@@ -444,6 +445,42 @@ def test_the_redraw_follows_the_location_likelihood(peak_nats: float) -> None:
     # inside the best cell the points are spread evenly (the density is flat there)
     inner = z[cell == 6] - (mid[6] - half)
     assert abs(np.mean(inner) / (2 * half) - 0.5) < 0.02
+
+
+def test_the_likelihood_interval_reaches_the_first_grid_values_beaten_by_half_h() -> None:
+    """Grid values within LIKELY_NATS = 8 of the best are inside; the interval ends at
+    the first value outside on each side. A set that reaches the grid's old-value end
+    ends at the old value, one that reaches the far end is open (0 for a drop)."""
+    assert LIKELY_NATS == 8.0
+    bank = FaultBank(FaultBankConfig(), 3, FS_HZ, AR_PAPER_DEFAULT)
+    grid = bank.locate_grid(side=-1.0) * 40e3
+    llr = 30.0 - 2.0 * (np.arange(15) - 6.0) ** 2    # within 8 of 30: indices 4-8
+    assert bank.likely_range(_detection(llr)) == (grid[3], grid[9])
+    llr_top = np.linspace(0.0, 28.0, 15)             # 2 nats a step, 8 back: 10th on
+    assert bank.likely_range(_detection(llr_top)) == (grid[9], 40e3)
+    llr_low = np.linspace(28.0, 0.0, 15)
+    assert bank.likely_range(_detection(llr_low)) == (0.0, grid[5])
+
+
+@pytest.mark.slow
+def test_the_located_interval_holds_the_truth_and_survives_an_old_checkpoint() -> None:
+    """A Csay x 0.3 step, 3 sensors: the estimates after the detection carry a likelihood
+    interval around the located value that holds the truth. A checkpoint from before
+    the interval (a 13-value scalar vector) restores with the redraw range as the
+    interval, the rule it ran with."""
+    from gateway.estimator import checkpoint as ckpt
+
+    _, Y = fault_data(1, 0.3, 3, seed=16, seconds=10.0, fault_at_s=6.0)
+    a = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=256, sensors=3, seed=16, mode="fast"))
+    est = a.run(_samples(Y), output_every=100)
+    loc = next(e.located for e in est if e.located is not None)
+    assert loc.parameter == "csay_ns_per_m"
+    assert loc.like_lo < 0.3 < loc.like_hi and loc.like_lo < loc.rel < loc.like_hi
+    meta, arrays = ckpt.unpack(a.checkpoint())
+    arrays["bank_vec"] = arrays["bank_vec"][:13]
+    b = RBPF.restore(ckpt.pack(meta, arrays))
+    assert b._bank is not None
+    assert b._bank.last_likely() == b._bank.last_range() == a._bank.last_range()
 
 
 def test_a_range_redraw_is_log_uniform_with_equal_weights() -> None:

@@ -104,10 +104,11 @@ def test_estimate_form_is_strict_json():
                         "csay_ns_per_m": {"mean": None, "std": 1e5},
                         "conicity": {"mean": 0.15, "std": None}},
                     "located": None}
-    loc = Located(1.4, "csy_ns_per_m", 0.5, 0.33, math.nan)
+    loc = Located(1.4, "csy_ns_per_m", 0.5, 0.33, math.nan, 0.0, math.inf)
     form = strict(jsonform.estimate_json(dataclasses.replace(NAN_EST, located=loc)))
     assert form["located"] == {"t_s": 1.4, "parameter": "csy_ns_per_m", "rel": 0.5,
-                               "rel_lo": 0.33, "rel_hi": None}
+                               "rel_lo": 0.33, "rel_hi": None, "like_lo": 0.0,
+                               "like_hi": None}
 
 
 def test_every_alert_writer_uses_the_one_form():

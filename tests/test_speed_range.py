@@ -31,6 +31,27 @@ def test_the_detection_summary_keeps_speeds_apart() -> None:
             for c in out] == [(20.0, 2, 5.0, 6.0), (V_PAPER, 2, 1.5, 2.0)]
 
 
+def test_the_detection_summary_counts_intervals_that_hold_the_truth_and_overstated_levels(
+        ) -> None:
+    """Csy at 0.6 of nominal warrants an ADVISORY (below 0.75), not a WARNING (0.55): a
+    run that raised a WARNING counts as past the truth, under the rule that raised it;
+    an interval that misses 0.6 does not count as held."""
+    base = {"what": "fault", "parameter": "csy_ns_per_m", "factor": 0.6, "sensors": 3,
+            "speed_mps": 42.5, "detect_s": 1.0, "track_s": 2.0, "alert_s": 1.1,
+            "alarm_s": None, "alert_estimates_only_s": 1.6, "alert_on_range_s": 1.1,
+            "alarm_on_range_s": None, "wrong": 0, "before": 0}
+    rows = [{**base, "located_like": [0.4, 0.7], "severity_max": "ADVISORY",
+             "severity_max_on_range": "WARNING"},
+            {**base, "located_like": [0.62, 0.9], "severity_max": None,
+             "severity_max_on_range": "ADVISORY"},
+            {**base, "located_like": None, "severity_max": None,
+             "severity_max_on_range": None}]
+    (case,) = summary(rows)
+    assert (case["located"], case["like_held"]) == (2, 1)
+    assert (case["severity_past_truth"], case["severity_past_truth_on_range"]) == (0, 1)
+    assert case["alert_on_range_s_median"] == 1.1
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("speed_mps, parameter, factor, seed",
                          [(20.0, 0, 0.25, 791), (70.0, 1, 0.3, 792)])

@@ -12,6 +12,12 @@ nominal, Sec. 4.2 speed or ``--speed-mps``) with 3 and 5 sensors and prints one 
   default alert policy fed the 10 Hz estimates (:class:`gateway.alerts.policy.AlertPolicy`,
   which acts on the bank's located changes); ``alert_estimates_only_s``: the same policy
   judging the estimates alone (``act_on_located=False``), on the same run;
+  ``alert_on_range_s`` / ``alarm_on_range_s`` / ``alerts_healthy_on_range``: the same
+  policy raising a located change at once on its redraw range, as before the night of 2026-11-27,
+  instead of its likelihood interval (``located_like``, relative to nominal);
+  ``severity_max`` / ``severity_max_on_range``: the highest level raised on the
+  parameter by either rule (a fault just short of a threshold, e.g. ``csy:0.6``, tells
+  whether a rule raises past what the truth warrants);
   ``alert_severity``: the first alert's level;
 - ``wrong``: detections on a healthy parameter; ``before``: detections before the fault;
   ``alerts_healthy`` / ``alerts_before`` the same for alerts.
@@ -52,7 +58,7 @@ from gateway.estimator.faultbank import REDRAWS, FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
-from gateway.records import Sample
+from gateway.records import Sample, Severity
 from gateway.runtime.pipeline import build_estimator
 
 FS_HZ = 1000.0
@@ -172,12 +178,24 @@ def _last(filt: Filter) -> tuple[float, str, float, float]:
     return last
 
 
-def alerts(est: Sequence[Any], act_on_located: bool = True) -> list[tuple[float, str, str]]:
+def alerts(est: Sequence[Any], act_on_located: bool = True, on_range: bool = False
+           ) -> list[tuple[float, str, str]]:
     """Raised alerts (data time, parameter, severity) of the default policy over ``est``
-    (``act_on_located`` False: judging the estimates alone, as before 2026-11-26)."""
+    (``act_on_located`` False: judging the estimates alone, as before 2026-11-26;
+    ``on_range``: a located change raises at once on its redraw range instead of its
+    likelihood interval, as before the night of 2026-11-27)."""
     policy = AlertPolicy(PolicyConfig(act_on_located=act_on_located))
+    if on_range:
+        est = [e if e.located is None else replace(e, located=replace(
+            e.located, like_lo=e.located.rel_lo, like_hi=e.located.rel_hi)) for e in est]
     return [(a.t_s, a.parameter, a.severity.name) for e in est for a in policy.step(e)
             if a.state.name == "RAISED"]
+
+
+def _highest(raised: Sequence[tuple[float, str, str]], name: str) -> str | None:
+    """The highest level raised on parameter ``name`` (None: nothing)."""
+    levels = [sev for _, n, sev in raised if n == name]
+    return max(levels, key=lambda sev: Severity[sev].value, default=None)
 
 
 def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
@@ -210,6 +228,9 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     alarm = [t - fault_at_s for t, n, sev in raised if n == name and sev == "ALARM"]
     judged = alerts(est, act_on_located=False)
     on_it_judged = [t - fault_at_s for t, n, _ in judged if n == name and t > fault_at_s]
+    ranged = alerts(est, on_range=True)
+    on_it_ranged = [t - fault_at_s for t, n, _ in ranged if n == name and t > fault_at_s]
+    alarm_ranged = [t - fault_at_s for t, n, sev in ranged if n == name and sev == "ALARM"]
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
             "speed_mps": speed_mps, "noise_scale": noise_scale, **_noise_columns(filt),
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
@@ -223,6 +244,13 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
             "alert_s": round(on_it[0], 2) if on_it else None,
             "alarm_s": round(alarm[0], 2) if alarm else None,
             "alert_estimates_only_s": round(on_it_judged[0], 2) if on_it_judged else None,
+            "alert_on_range_s": round(on_it_ranged[0], 2) if on_it_ranged else None,
+            "alarm_on_range_s": round(alarm_ranged[0], 2) if alarm_ranged else None,
+            "alerts_healthy_on_range": sum(n != name for _, n, _ in ranged),
+            "severity_max": _highest(raised, name), "severity_max_on_range": _highest(ranged, name),
+            "located_like": next(([round(e.located.like_lo, 3), round(e.located.like_hi, 3)]
+                                  for e in est if right and e.located is not None
+                                  and e.located.t_s == right[0][0]), None),
             "alert_severity": next((sev for t, n, sev in raised
                                     if n == name and t > fault_at_s), None),
             "alerts_healthy": sum(n != name for _, n, _ in raised),

@@ -12,7 +12,10 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.scenarios import V_PAPER
+from gateway.alerts.judge import beyond
+from gateway.alerts.policy import default_params
 from gateway.model.vehicle import PARAM_NAMES
+from gateway.records import Severity
 
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -20,7 +23,11 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     tracking delays (s), first alert and ALARM (and the first alert of the policy that
     judges the estimates alone, rows since 2026-11-26), runs detected on the right
     parameter, wrong and early detections. A case's worst is None when some run never
-    detected, tracked or alerted."""
+    detected, tracked or alerted. Rows since the night of 2026-11-27 add the range rule's
+    first alert and ALARM (``*_on_range_s``), the runs whose located likelihood interval
+    held the truth (``like_held`` of ``located``), and the runs that raised a level the
+    truth does not warrant (past the default policy's thresholds: ``severity_past_truth``,
+    and ``..._on_range``)."""
     out = []
     def key_of(r: dict[str, Any]) -> tuple[str, float, int, float]:
         # rows written before 2026-11-27 have no speed: they ran at the paper's
@@ -31,7 +38,8 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         case = [r for r in rows if r["what"] == "fault" and key_of(r) == key]
         row: dict[str, Any] = {"parameter": key[0], "factor": key[1], "sensors": key[2],
                                "speed_mps": key[3], "runs": len(case)}
-        for name in ("detect_s", "track_s", "alert_s", "alarm_s", "alert_estimates_only_s"):
+        for name in ("detect_s", "track_s", "alert_s", "alarm_s", "alert_estimates_only_s",
+                     "alert_on_range_s", "alarm_on_range_s"):
             vals = [r.get(name) for r in case]
             got = [v for v in vals if v is not None]
             row[f"{name}_median"] = float(np.median(got)) if got else None
@@ -41,8 +49,24 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         row["before"] = sum(r["before"] for r in case)
         row["alerts_healthy"] = sum(r.get("alerts_healthy", 0) for r in case)
         row["alerts_before"] = sum(r.get("alerts_before", 0) for r in case)
+        like = [r["located_like"] for r in case if r.get("located_like")]
+        row["located"] = len(like)
+        row["like_held"] = sum(lo <= key[1] <= hi for lo, hi in like)
+        warranted = _warranted(key[0], key[1])
+        for col, name in (("severity_max", "severity_past_truth"),
+                          ("severity_max_on_range", "severity_past_truth_on_range")):
+            row[name] = sum(r.get(col) is not None and Severity[r[col]].value > warranted
+                            for r in case)
         out.append(row)
     return out
+
+
+def _warranted(parameter: str, factor: float) -> int:
+    """The highest level (0: none) a parameter at ``factor`` of nominal warrants under
+    the default policy's thresholds (either side)."""
+    pp = default_params()[parameter]
+    return max(sum(t is not None and beyond(side, factor, t) for t in pp.levels(side))
+               for side in ("low", "high"))
 
 
 def plot(rows: Sequence[dict[str, Any]], path: str) -> None:

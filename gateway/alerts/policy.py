@@ -13,8 +13,8 @@ Per parameter, ``rel = mean / nominal`` is judged against thresholds on a low si
 wheels), one per severity. A confidence gate (``std / max(|mean|, nominal)``), hold
 times in data time and hysteresis keep estimator noise from raising or flapping alerts.
 A change the estimator's fault bank located (:class:`gateway.records.Located`) whose
-whole redraw range lies past a threshold raises at once: the bank has already made the
-statistical decision the hold times stand in for.
+whole likelihood interval lies past a threshold raises at once: the bank has already
+made the statistical decision the hold times stand in for, to its own standard.
 """
 
 from __future__ import annotations
@@ -146,8 +146,8 @@ class PolicyConfig:
     value past its threshold by at least ``sure_sigmas`` times the estimate's std (both
     relative to nominal) on every estimate, raises after ``sure_hold_s`` instead: a
     damper the estimator has found failed need not wait the noise hold. With
-    ``act_on_located`` a change the fault bank located, its whole range past a threshold,
-    raises with the estimate that reports it (docs/alerts.md, "Located changes").
+    ``act_on_located`` a change the fault bank located, its whole likelihood interval past
+    a threshold, raises with the estimate that reports it (docs/alerts.md, "Located changes").
     """
 
     params: Mapping[str, ParamPolicy] = field(default_factory=default_params)
@@ -308,15 +308,15 @@ class AlertPolicy:
     def _located(self, name: str, pp: ParamPolicy, tr: _Track, t_s: float, loc: Located
                  ) -> list[Alert]:
         """Raise (or escalate) at once to the highest level whose threshold the whole
-        located range ``rel_lo``..``rel_hi`` is past; nothing if no level is. Each change
-        is acted on once (estimates carry it for 2 s; after a restart, acting again raises
-        nothing that is already raised)."""
+        likelihood interval ``like_lo``..``like_hi`` is past; nothing if no level is. Each
+        change is acted on once (estimates carry it for 2 s; after a restart, acting again
+        raises nothing that is already raised)."""
         if loc.t_s == tr.located_t_s:
             return []
         tr.located_t_s = loc.t_s
         sev, side = 0, ""
         for s in SIDES:
-            edge = loc.rel_hi if s == "low" else loc.rel_lo
+            edge = loc.like_hi if s == "low" else loc.like_lo
             for k, threshold in enumerate(pp.levels(s)):
                 if threshold is not None and judge.beyond(s, edge, threshold) and k + 1 > sev:
                     sev, side = k + 1, s
@@ -325,7 +325,7 @@ class AlertPolicy:
         tr.value_rel = loc.rel
         return self._raise_over(name, pp, tr, sev, side, t_s,
                                 f"{name} located by the fault bank at {loc.rel:.3f} of "
-                                f"nominal ({loc.rel_lo:.3f}-{loc.rel_hi:.3f})")
+                                f"nominal (likely {loc.like_lo:.3f}-{loc.like_hi:.3f})")
 
     def _judge(self, name: str, pp: ParamPolicy, tr: _Track, t_s: float, mean: float,
                std: float) -> list[Alert]:

@@ -111,6 +111,13 @@ DEFENSIVE_SHARE = 0.1
 (:meth:`FaultBank.redraw`), weighted so that the cloud still follows the likelihood: a
 defensive mixture (Hesterberg 1995), which keeps particles near the truth if the grid's
 profile likelihood is off (another parameter, the model)."""
+LIKELY_NATS = 8.0
+"""How far (nats) a grid value's summed log-likelihood ratio may trail the located
+value's and still count as likely (:meth:`FaultBank.likely_range`): (4 sigma)^2 / 2, the
+alert policy's standard for a sure estimate (``PolicyConfig.sure_sigmas`` = 4), so that
+an alert the location raises at once asks of the location what a sure alert asks of the
+estimates. h / 2 = 12.5 nats was measured too (docs/estimator.md "Located alerts follow
+the likelihood interval")."""
 REDRAWS = ("likelihood", "range")
 """How a detection redraws its parameter (:attr:`FaultBankConfig.redraw_from`)."""
 
@@ -207,7 +214,9 @@ ratio is -inf from then on, so no value is needed."""
 
 # layout of the bank's scalar vector
 _ACTIVE, _HOLD, _LAST_T, _LAST_P, _LAST_F, _COUNT, _PEND, _MODE, _LOC_P, _LOC_SIDE, _LEFT, \
-    _CONF_T, _LAST_V = range(13)
+    _CONF_T, _LAST_V, _LIKE_LO, _LIKE_HI = range(15)
+_VEC_BEFORE_LIKE = 13
+"""Length of the scalar vector in checkpoints from before the likelihood interval."""
 _WATCH, _LOCATE = 0.0, 1.0
 
 
@@ -228,7 +237,7 @@ class FaultBank:
         self.g = np.zeros(self.n_hyp)              # CUSUMs, nats
         self.x = np.zeros((self._nch, NZ * LANES))  # filter states, lane layout
         self.P = np.zeros((self._nch, NZ * NZ * LANES))  # covariances while locating
-        self.vec = np.zeros(13)                    # active, hold left, last detection
+        self.vec = np.zeros(15)                    # active, hold left, last detection
         self._gains: SteadyGains | None = None
         self._phi = np.empty((self._nch, NZ * NZ * LANES))
         self._qd = np.empty_like(self._phi)
@@ -267,7 +276,10 @@ class FaultBank:
     def load(self, arrays: dict[str, np.ndarray]) -> None:
         """Restore :meth:`arrays` output (after :meth:`set_model`): the gains are solved
         again from it, bit-identical. A checkpoint from before the exact location phase
-        has no ``bank_P``: if it was locating, the grid's covariances start again there."""
+        has no ``bank_P``: if it was locating, the grid's covariances start again there.
+        One from before the likelihood interval gives its last detection the redraw range
+        as its interval (the alert rule it ran with)."""
+        arrays = self._with_likely(arrays)
         for key, attr in (("bank_ref", "ref"), ("bank_g", "g"), ("bank_x", "x"),
                           ("bank_vec", "vec"), ("bank_P", "P")):
             if key in arrays:
@@ -280,6 +292,18 @@ class FaultBank:
             v0 = self._solve()
             if self.locating and "bank_P" not in arrays:
                 self.P = self._start_cov(v0)
+
+    def _with_likely(self, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``arrays`` with a scalar vector from before the likelihood interval extended by
+        its last detection's redraw range as that interval (zeros without a detection)."""
+        vec = arrays.get("bank_vec")
+        if vec is None or vec.shape != (_VEC_BEFORE_LIKE,):
+            return arrays
+        ext = np.zeros_like(self.vec)
+        ext[:_VEC_BEFORE_LIKE] = vec
+        if vec[_COUNT] > 0:
+            ext[_LIKE_LO], ext[_LIKE_HI] = self._range_of(vec)
+        return {**arrays, "bank_vec": ext}
 
     def snapshot(self) -> tuple[tuple[np.ndarray, ...], Lookback]:
         """A copy of the whole state, gains and look-back included, for :meth:`rewind`
@@ -676,6 +700,7 @@ class FaultBank:
                         step=float(grid[1] / grid[0]), grid=grid, llr=self.g.copy())
         self.vec[_LAST_T], self.vec[_LAST_P], self.vec[_LAST_F] = t_s, p, det.factor
         self.vec[_LAST_V] = det.factor * det.reference
+        self.vec[_LIKE_LO], self.vec[_LIKE_HI] = self.likely_range(det)
         self.vec[_COUNT] += 1
         self.vec[_MODE] = _WATCH
         # the bank restarts around the located value; the estimator refreshes theta_ref
@@ -759,8 +784,38 @@ class FaultBank:
         (:meth:`redraw_range`), in the parameter's unit, or None."""
         if self.count == 0:
             return None
-        grid = self.locate_grid(side=-1.0 if self.vec[_LAST_F] < 1.0 else 1.0)
-        return _around(float(self.vec[_LAST_V]), float(grid[1] / grid[0]))
+        return self._range_of(self.vec)
+
+    def _range_of(self, vec: np.ndarray) -> tuple[float, float]:
+        """The redraw range of the last detection in the scalar vector ``vec``."""
+        grid = self.locate_grid(side=-1.0 if vec[_LAST_F] < 1.0 else 1.0)
+        return _around(float(vec[_LAST_V]), float(grid[1] / grid[0]))
+
+    def likely_range(self, det: Detection) -> tuple[float, float]:
+        """The values (lo, hi) the location cannot tell from its best one: the grid values
+        whose summed log-likelihood ratio is within :data:`LIKELY_NATS` of the best's,
+        widened to the next grid value outside them on each side (where the sum is known
+        to trail by that much or more). Past the grid's old-value end that is the old
+        value (the location beat it by ``h / 2``, more than that); past its far end
+        nothing was summed, so 0 or infinity. For a likelihood Gaussian in log theta a
+        value outside is 4 sigma or more from the best, and the alert policy raises at
+        once only on a threshold this whole interval is past (docs/alerts.md, "Located
+        changes")."""
+        values = det.grid * det.reference
+        inside = np.nonzero(det.llr >= det.llr.max() - LIKELY_NATS)[0]
+        i0, i1 = int(inside[0]), int(inside[-1])
+        drop = det.grid[-1] < 1.0
+        below = det.reference if not drop else 0.0
+        above = det.reference if drop else np.inf
+        return (float(values[i0 - 1]) if i0 > 0 else below,
+                float(values[i1 + 1]) if i1 + 1 < len(values) else above)
+
+    def last_likely(self) -> tuple[float, float] | None:
+        """The latest detection's :meth:`likely_range`, in the parameter's unit, or
+        None."""
+        if self.count == 0:
+            return None
+        return float(self.vec[_LIKE_LO]), float(self.vec[_LIKE_HI])
 
     def last(self) -> tuple[float, int, float, float] | None:
         """(data time, parameter index, located value, time the crossing was confirmed)

@@ -959,12 +959,13 @@ class RBPF:
         if last is None or not 0.0 <= t_s - last[0] <= LOCATED_FOR_S:
             return None
         assert self._bank is not None
-        rng = self._bank.last_range()
-        assert rng is not None
+        rng, like = self._bank.last_range(), self._bank.last_likely()
+        assert rng is not None and like is not None
         t_det_s, p, value, _ = last
         nominal = float(self.config.nominal_array[p])
         return Located(t_s=t_det_s, parameter=self.config.names[p], rel=value / nominal,
-                       rel_lo=rng[0] / nominal, rel_hi=rng[1] / nominal)
+                       rel_lo=rng[0] / nominal, rel_hi=rng[1] / nominal,
+                       like_lo=like[0] / nominal, like_hi=like[1] / nominal)
 
 
 @numba.njit(cache=True)
