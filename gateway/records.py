@@ -43,8 +43,8 @@ class Located:
     at data time ``t_s``: ``parameter`` (a :data:`PARAM_NAMES` name), its located value
     ``rel`` and its redraw range ``rel_lo``..``rel_hi`` (three location-grid steps either
     side: :meth:`gateway.estimator.faultbank.FaultBank.redraw_range`), and its likelihood
-    interval ``like_lo``..``like_hi`` (the values the location could not tell from the
-    located one by half the bank's threshold:
+    interval ``like_lo``..``like_hi`` (the values whose summed log-likelihood the
+    location found within 8 nats, 4 sigma, of the located one's:
     :meth:`gateway.estimator.faultbank.FaultBank.likely_range`; 0 or inf where it is
     open), all relative to nominal. The bank's CUSUM crossed its threshold and the
     location beat the old value by half that, so the alert policy may act on it at once

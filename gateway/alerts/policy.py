@@ -14,7 +14,8 @@ wheels), one per severity. A confidence gate (``std / max(|mean|, nominal)``), h
 times in data time and hysteresis keep estimator noise from raising or flapping alerts.
 A change the estimator's fault bank located (:class:`gateway.records.Located`) whose
 whole likelihood interval lies past a threshold raises at once: the bank has already
-made the statistical decision the hold times stand in for, to its own standard.
+made the statistical decision the hold times stand in for, and every value on the far
+side of the threshold is 4 sigma or more from the located one (the sure standard).
 """
 
 from __future__ import annotations

@@ -796,8 +796,8 @@ class FaultBank:
         whose summed log-likelihood ratio is within :data:`LIKELY_NATS` of the best's,
         widened to the next grid value outside them on each side (where the sum is known
         to trail by that much or more). Past the grid's old-value end that is the old
-        value (the location beat it by ``h / 2``, more than that); past its far end
-        nothing was summed, so 0 or infinity. For a likelihood Gaussian in log theta a
+        value (which the location beat by ``h / 2``, more than :data:`LIKELY_NATS`); past
+        its far end nothing was summed, so 0 or infinity. For a likelihood Gaussian in log theta a
         value outside is 4 sigma or more from the best, and the alert policy raises at
         once only on a threshold this whole interval is past (docs/alerts.md, "Located
         changes")."""
