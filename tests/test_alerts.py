@@ -370,7 +370,7 @@ def test_a_located_change_past_a_threshold_raises_with_its_estimate() -> None:
     ("conicity", 1.65, 3.1, "ADVISORY"),            # a rise: the lower end past 1.6
     ("conicity", 1.0, 1.9, None),                   # the healthy-data detection of 2026-11-25
 ])
-def test_a_located_change_raises_the_level_its_whole_range_is_past(
+def test_a_located_change_raises_the_level_its_whole_interval_is_past(
         parameter: str, lo: float, hi: float, want: str | None) -> None:
     p = AlertPolicy()
     ev = p.step(located(5.0, parameter, (lo * hi) ** 0.5, lo, hi))

@@ -447,7 +447,7 @@ def test_the_redraw_follows_the_location_likelihood(peak_nats: float) -> None:
     assert abs(np.mean(inner) / (2 * half) - 0.5) < 0.02
 
 
-def test_the_likelihood_interval_reaches_the_first_grid_values_beaten_by_half_h() -> None:
+def test_the_likelihood_interval_reaches_the_first_grid_values_trailing_by_8_nats() -> None:
     """Grid values within LIKELY_NATS = 8 of the best are inside; the interval ends at
     the first value outside on each side. A set that reaches the grid's old-value end
     ends at the old value, one that reaches the far end is open (0 for a drop)."""
