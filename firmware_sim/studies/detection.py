@@ -18,7 +18,8 @@ nominal, Sec. 4.2 speed or ``--speed-mps``) with 3 and 5 sensors and prints one 
   ``severity_max`` / ``severity_max_on_range``: the highest level raised on the
   parameter by either rule (a fault just short of a threshold, e.g. ``csy:0.6``, tells
   whether a rule raises past what the truth warrants);
-  ``alert_severity``: the first alert's level;
+  ``alert_severity``: the first alert's level (the alert columns:
+  :mod:`firmware_sim.studies.detection_alerts`);
 - ``wrong``: detections on a healthy parameter; ``before``: detections before the fault;
   ``alerts_healthy`` / ``alerts_before`` the same for alerts.
 
@@ -48,17 +49,17 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.scenarios import V_PAPER
+from firmware_sim.studies.detection_alerts import alert_columns, alerts
 from firmware_sim.studies.detection_report import plot, summary
 from firmware_sim.studies.holds import holds, periodic_holds
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
-from gateway.alerts.policy import AlertPolicy, PolicyConfig
 from gateway.config import EstimatorConfig
 from gateway.errors import InputError
 from gateway.estimator.faultbank import REDRAWS, FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
-from gateway.records import Sample, Severity
+from gateway.records import Sample
 from gateway.runtime.pipeline import build_estimator
 
 FS_HZ = 1000.0
@@ -178,26 +179,6 @@ def _last(filt: Filter) -> tuple[float, str, float, float]:
     return last
 
 
-def alerts(est: Sequence[Any], act_on_located: bool = True, on_range: bool = False
-           ) -> list[tuple[float, str, str]]:
-    """Raised alerts (data time, parameter, severity) of the default policy over ``est``
-    (``act_on_located`` False: judging the estimates alone, as before 2026-11-26;
-    ``on_range``: a located change raises at once on its redraw range instead of its
-    likelihood interval, as before the night of 2026-11-27)."""
-    policy = AlertPolicy(PolicyConfig(act_on_located=act_on_located))
-    if on_range:
-        est = [e if e.located is None else replace(e, located=replace(
-            e.located, like_lo=e.located.rel_lo, like_hi=e.located.rel_hi)) for e in est]
-    return [(a.t_s, a.parameter, a.severity.name) for e in est for a in policy.step(e)
-            if a.state.name == "RAISED"]
-
-
-def _highest(raised: Sequence[tuple[float, str, str]], name: str) -> str | None:
-    """The highest level raised on parameter ``name`` (None: nothing)."""
-    levels = [sev for _, n, sev in raised if n == name]
-    return max(levels, key=lambda sev: Severity[sev].value, default=None)
-
-
 def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds: float,
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
@@ -223,14 +204,6 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     name = PARAM_NAMES[parameter]
     right = [f for f in found if f[0] > fault_at_s and f[1] == name]
     last = est[-1]
-    raised = alerts(est)
-    on_it = [t - fault_at_s for t, n, _ in raised if n == name and t > fault_at_s]
-    alarm = [t - fault_at_s for t, n, sev in raised if n == name and sev == "ALARM"]
-    judged = alerts(est, act_on_located=False)
-    on_it_judged = [t - fault_at_s for t, n, _ in judged if n == name and t > fault_at_s]
-    ranged = alerts(est, on_range=True)
-    on_it_ranged = [t - fault_at_s for t, n, _ in ranged if n == name and t > fault_at_s]
-    alarm_ranged = [t - fault_at_s for t, n, sev in ranged if n == name and sev == "ALARM"]
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
             "speed_mps": speed_mps, "noise_scale": noise_scale, **_noise_columns(filt),
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
@@ -241,20 +214,10 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
             "detect_s": round(right[0][0] - fault_at_s, 3) if right else None,
             "located_rel": round(right[0][2] / factor, 3) if right else None,
             "track_s": None if track is None else round(track, 2),
-            "alert_s": round(on_it[0], 2) if on_it else None,
-            "alarm_s": round(alarm[0], 2) if alarm else None,
-            "alert_estimates_only_s": round(on_it_judged[0], 2) if on_it_judged else None,
-            "alert_on_range_s": round(on_it_ranged[0], 2) if on_it_ranged else None,
-            "alarm_on_range_s": round(alarm_ranged[0], 2) if alarm_ranged else None,
-            "alerts_healthy_on_range": sum(n != name for _, n, _ in ranged),
-            "severity_max": _highest(raised, name), "severity_max_on_range": _highest(ranged, name),
+            **alert_columns(est, name, fault_at_s),
             "located_like": next(([round(e.located.like_lo, 3), round(e.located.like_hi, 3)]
                                   for e in est if right and e.located is not None
                                   and e.located.t_s == right[0][0]), None),
-            "alert_severity": next((sev for t, n, sev in raised
-                                    if n == name and t > fault_at_s), None),
-            "alerts_healthy": sum(n != name for _, n, _ in raised),
-            "alerts_before": sum(t <= fault_at_s for t, _, _ in raised),
             "wrong": sum(f[1] != name for f in found if f[0] > fault_at_s),
             "before": sum(f[0] <= fault_at_s for f in found),
             "detections": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
