@@ -49,7 +49,7 @@ def test_the_service_filter_holds_a_start_up_outlier_record() -> None:
     assert service["moves_drop_null"] and service["start_ramp_s"] > 0
     assert service["t_s"] == 5.0 and all(abs(z) <= 4.0 for z in service["z"]), service
     whole = rows_for("paper", 10, 5, 1000, "fast", ml=False, at_s=at, moves_drop_null=False,
-                     start_ramp_s=0.0)[0]
+                     start_ramp_s=0.0, start_ramp_m=0.0)[0]
     assert abs(whole["z"][0]) > 4.0, whole
 
 

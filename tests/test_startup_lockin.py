@@ -150,3 +150,43 @@ def test_a_start_that_locked_in_without_the_ramp_does_not() -> None:
     assert est.t_s == 5.0
     assert np.all(err <= 0.25 * truth), mean / truth
     assert np.all(err <= 4 * std), (mean - truth) / std
+
+
+@pytest.mark.parametrize(("speed_mps", "ramp_samples"), [(20.0, 106), (70.0, 50)])
+def test_the_start_ramp_lasts_a_stretch_of_track_at_the_first_datas_speed(
+        speed_mps: float, ramp_samples: int) -> None:
+    """``start_ramp_m``: the ramp lasts ``max(start_ramp_s, start_ramp_m / v)`` of data,
+    v the speed of the first data after the start, not of the gated samples before it
+    (here 5 m/s, where the ramp would last 0.43 s): 2.125 m is 106 samples at 20 m/s,
+    and at 70 m/s ``start_ramp_s`` (50 samples) rules. A checkpoint inside the ramp
+    restores it exactly."""
+    Y = _data((1.0, 1.0, 1.0), 0.25, seed=6)
+    quiet = dict(n_particles=64, resample=False, monitor=None, faults=None)
+    plain = RBPF(_service_config(seed=2, **quiet))
+    ramped = RBPF(_service_config(seed=2, start_ramp_s=0.05, start_ramp_m=2.125, **quiet))
+    gated = 20
+    samples = [Sample((k + 1) / FS_HZ, Y[k], 5.0 if k < gated else speed_mps, k >= gated)
+               for k in range(len(Y))]
+    expect = np.zeros(64)
+    before = np.zeros(64)
+    for k, s in enumerate(samples):
+        plain.advance(s)
+        ramped.advance(s)
+        c = max(k + 1 - gated, 0)
+        expect += min(c / ramp_samples, 1.0) * (plain.logw - before)
+        before = plain.logw.copy()
+        np.testing.assert_allclose(ramped.logw, expect, rtol=1e-9, atol=1e-9, err_msg=str(k))
+        if k == gated + 30:
+            restored = RBPF.restore(ramped.checkpoint())
+    for s in samples[gated + 31:]:
+        restored.advance(s)
+    assert np.array_equal(restored.logw, ramped.logw)
+    assert np.ptp(plain.logw) > 50
+
+
+def test_the_service_ramps_over_42_5_m_of_track() -> None:
+    """The service's filter: 1 s at the paper's 42.5 m/s, and 42.5 m of track below it."""
+    from firmware_sim.studies.detection import service_filter
+
+    cfg = service_filter(3, 1, 16, "fast").config
+    assert (cfg.start_ramp_s, cfg.start_ramp_m) == (1.0, 42.5)

@@ -16,7 +16,9 @@ nominal) and runs 10 s (start-up: is the lock-in gone everywhere in the box?); n
 
 ``--moves-drop-null`` / ``--no-moves-drop-null`` runs the filter with that option of
 :class:`gateway.estimator.rbpf_config.RBPFConfig` on or off (default: the filter's own),
-``--start-ramp-s`` with that ``start_ramp_s`` (default: the service's). ``--at-s`` sets
+``--start-ramp-s`` with that ``start_ramp_s`` and ``--start-ramp-m`` with that
+``start_ramp_m`` (default: the service's; ``--start-ramp-m 0``: the ramp in seconds
+alone, as before 2026-11-27). ``--at-s`` sets
 the check times (the record lasts until the last one).
 ``--hold AT FOR`` holds the updates from AT s for FOR s (a curve and its straight hold:
 the filters predict through it). ``--from-rest`` starts the truth at rest instead of in
@@ -88,18 +90,19 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              ml: bool, at_s: Sequence[float] | None = None,
              moves_drop_null: bool | None = None, from_rest: bool = False,
              start_ramp_s: float | None = None, hold: tuple[float, float] | None = None,
-             speed_mps: float = V_MPS) -> list[dict[str, Any]]:
+             speed_mps: float = V_MPS, start_ramp_m: float | None = None
+             ) -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
-    None: the default), and ``start_ramp_s`` that one; ``from_rest``: the truth starts at
-    rest; ``hold`` (start, length) in s: no updates then, as the gate holds them in a
-    curve; ``speed_mps``: the vehicle's constant speed."""
+    None: the default), and ``start_ramp_s`` and ``start_ramp_m`` those; ``from_rest``:
+    the truth starts at rest; ``hold`` (start, length) in s: no updates then, as the
+    gate holds them in a curve; ``speed_mps``: the vehicle's constant speed."""
     theta = THETA_SEC42.as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps)
     filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
-                          start_ramp_s=start_ramp_s)
+                          start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m)
     held = None if hold is None else holds(len(Y), FS_HZ, [hold[0]], hold[1])
     est, found, _ = run(Y, filt, held=held, speed_mps=speed_mps)
     out = []
@@ -111,6 +114,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
             "t_s": t, "mode": mode,
             "moves_drop_null": filt.config.moves_drop_null,
             "from_rest": from_rest, "start_ramp_s": filt.config.start_ramp_s,
+            "start_ramp_m": filt.config.start_ramp_m,
             "hold": None if hold is None else list(hold),
             "particles": particles, "truth": theta.tolist(), "mean": m.tolist(),
             "std": s.tolist(), "z": np.round((m - theta) / s, 3).tolist(),
@@ -130,11 +134,11 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (study, option, sensors, t_s): records; per parameter the share with |z| <= 2, the
     largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
     def key_of(r: dict[str, Any]
-               ) -> tuple[str, bool, float, bool, int, float, str, str, float]:
+               ) -> tuple[str, bool, float, bool, int, float, str, str, float, float]:
         return (r["study"], bool(r.get("moves_drop_null", False)),
                 float(r.get("start_ramp_s", 0.0)), bool(r.get("from_rest", False)),
                 r["sensors"], r["t_s"], r.get("mode", "fast"), str(r.get("hold")),
-                float(r.get("speed_mps", V_MPS)))
+                float(r.get("speed_mps", V_MPS)), float(r.get("start_ramp_m", 0.0)))
 
     out = []
     for key in sorted({key_of(r) for r in rows}):
@@ -143,7 +147,8 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"study": key[0], "moves_drop_null": key[1],
                                "start_ramp_s": key[2], "from_rest": key[3],
                                "sensors": key[4], "t_s": key[5], "mode": key[6],
-                               "hold": key[7], "speed_mps": key[8], "records": len(case)}
+                               "hold": key[7], "speed_mps": key[8],
+                               "start_ramp_m": key[9], "records": len(case)}
         for i, name in enumerate(PARAM_NAMES):
             row[f"{name}_within_2sigma"] = round(float(np.mean(z[:, i] <= 2.0)), 3)
             row[f"{name}_max_abs_z"] = round(float(z[:, i].max()), 2)
@@ -172,6 +177,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "filter's own)")
     ap.add_argument("--start-ramp-s", type=float, default=None,
                     help="the filter's start_ramp_s (default: the service's)")
+    ap.add_argument("--start-ramp-m", type=float, default=None,
+                    help="the filter's start_ramp_m (default: the service's; 0: the ramp "
+                         "in seconds alone)")
     ap.add_argument("--at-s", type=float, nargs="+", default=None,
                     help="check times in s (default: paper 5 20, box 10)")
     ap.add_argument("--from-rest", action="store_true",
@@ -196,7 +204,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 at_s=args.at_s, moves_drop_null=args.moves_drop_null,
                                 from_rest=args.from_rest, start_ramp_s=args.start_ramp_s,
                                 hold=None if args.hold is None else tuple(args.hold),
-                                speed_mps=args.speed_mps):
+                                speed_mps=args.speed_mps,
+                                start_ramp_m=args.start_ramp_m):
                 print(json.dumps(row), flush=True)
     return 0
 

@@ -103,10 +103,11 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    sensor_noise: str = "measured", moves_drop_null: bool | None = None,
                    start_ramp_s: float | None = None, locate_min_s: float | None = None,
                    locate_max_s: float | None = None, replay_s: float | None = None,
-                   redraw_from: str | None = None) -> Filter:
+                   redraw_from: str | None = None,
+                   start_ramp_m: float | None = None) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
-    sensor-noise test, the start's likelihood ramp); ``moves_drop_null`` and
-    ``start_ramp_s`` override those options of the filter, ``locate_min_s``,
+    sensor-noise test, the start's likelihood ramp); ``moves_drop_null``,
+    ``start_ramp_s`` and ``start_ramp_m`` override those options of the filter, ``locate_min_s``,
     ``locate_max_s``, ``replay_s`` and ``redraw_from`` those of its fault bank
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`,
     :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's)."""
@@ -118,7 +119,9 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    moves_drop_null=(filt.config.moves_drop_null if moves_drop_null is None
                                     else moves_drop_null),
                    start_ramp_s=(filt.config.start_ramp_s if start_ramp_s is None
-                                 else start_ramp_s))
+                                 else start_ramp_s),
+                   start_ramp_m=(filt.config.start_ramp_m if start_ramp_m is None
+                                 else start_ramp_m))
     if rbpf.faults is not None:
         bank = rbpf.faults
         rbpf = replace(rbpf, faults=replace(

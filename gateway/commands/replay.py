@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
                 "estimate_track_roughness": cfg.estimator.estimate_track_roughness,
                 "drift_per_sqrt_s": cfg.estimator.drift_per_sqrt_s,
                 "start_ramp_s": cfg.estimator.start_ramp_s,
+                "start_ramp_m": cfg.estimator.start_ramp_m,
                 "sensor_noise": cfg.estimator.sensor_noise,
                 "fs_hz": cfg.resampler.fs_hz, "source": str(args.log)}
     diagnostics = {"frames": result.frames, "rejected": result.rejected,

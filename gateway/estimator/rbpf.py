@@ -110,7 +110,7 @@ _GAINS = ("p_pred", "g", "s", "c0", "iters")
 _SCALARS = ("t_s", "n_steps", "n_resamples", "n_detections", "n_reseeds", "since_move",
             "updated_since_move", "_v_ref", "_p0_set", "_steady", "_warm_left",
             "_at_prior", "_prior_v", "_data_since_start", "_bank_check_at",
-            "_ramp_from", "_bank_from", "_last_data_step", "_rejoin")
+            "_ramp_from", "_ramp_n", "_bank_from", "_last_data_step", "_rejoin")
 
 
 class RBPF:
@@ -225,7 +225,7 @@ class RBPF:
             self._gains = SteadyGains.empty(self._nch, self.ny)
             self._steady = False
             self._warm_left = self._warm_steps()
-            self._ramp_from = self._data_since_start
+            self._start_ramp()
             self._p0_set = True
             self._at_prior, self._prior_v = True, self._v_ref
         # a new speed band solves cold: its filter coordinates are not the last band's
@@ -348,16 +348,34 @@ class RBPF:
         """Full samples the exact recursion runs at least after a lost frame."""
         return min(self._warm_steps(), int(round(SETTLE_S * self.config.fs_hz)))
 
+    def _start_ramp(self) -> None:
+        """A filter start: the ramp starts with the next data (:meth:`_ramp_steps`)."""
+        self._ramp_from = self._data_since_start
+        self._ramp_n = self._ramp_steps()
+
+    def _ramp_steps(self) -> int:
+        """Samples with data in the ramp: ``start_ramp_s`` of data, or ``start_ramp_m`` of
+        track at today's speed if that is longer (:class:`RBPFConfig`)."""
+        cfg = self.config
+        ramp_s = cfg.start_ramp_s
+        if cfg.start_ramp_m > 0.0 and np.isfinite(self._v_ref) and self._v_ref > 0.0:
+            ramp_s = max(ramp_s, cfg.start_ramp_m / self._v_ref)
+        return int(round(ramp_s * cfg.fs_hz))
+
     @property
     def _in_ramp(self) -> bool:
-        """Whether the data since the last filter start are still inside ``start_ramp_s``
-        (:class:`RBPFConfig`)."""
+        """Whether the data since the last filter start are still inside the ramp
+        (:meth:`_start_ramp`)."""
         return self._data_since_start - self._ramp_from < self._ramp_n
 
     def _ramp(self, ll: np.ndarray, with_data: np.ndarray) -> None:
         """Scale the log-likelihoods ``ll`` (k, lanes) of the next samples, ``with_data``
         (k,), by c / n while inside the ramp (c-th sample with data since the filter
-        start, n samples in the ramp)."""
+        start, n samples in the ramp). Its length is set at the speed of the first data
+        after the start (a filter that starts while the gate holds the updates, below
+        its lowest speed, would otherwise take the holding speed's)."""
+        if self._data_since_start == self._ramp_from:
+            self._ramp_n = self._ramp_steps()
         c = self._data_since_start - self._ramp_from + np.cumsum(with_data)
         ll *= np.minimum(c / self._ramp_n, 1.0)[:, None]
 
@@ -797,7 +815,7 @@ class RBPF:
             self._steady = False
             self._end_rejoin()
             self._warm_left = self._warm_steps()
-            self._ramp_from = self._data_since_start
+            self._start_ramp()
             self._at_prior, self._prior_v = True, self._v_ref
         elif not self._steady:
             p_anc = from_lanes(self._P, cfg.n_particles, (NZ * NZ,))[anc]

@@ -63,6 +63,12 @@ class RBPFConfig:
     resample-moves can follow; 0 (default, the paper) weighs every sample fully; the
     service uses 1 s (:class:`gateway.config.EstimatorConfig`; docs/estimator.md
     "Calibration of the stated sigma");
+    ``start_ramp_m``: the same ramp lasts at least this much track (m), at the speed of
+    the filter start: ``max(start_ramp_s, start_ramp_m / v)``. The kinematic mode, which
+    carries most of λ's information, has a fixed wavelength, so a ramp in seconds covers
+    fewer of its cycles at low speed; 0 (default) keeps the ramp in seconds alone; the
+    service uses 42.5 m, 1 s at the paper's speed (docs/estimator.md "The start's ramp
+    in track distance");
     ``noise_var``: the sensors' white-noise variances (SI units^2, in sensor-set order);
     None: the paper's Qv (:func:`gateway.model.vehicle.measurement_noise`). The service
     measures them at the start of a run (:mod:`gateway.estimator.noisestart`);
@@ -99,6 +105,7 @@ class RBPFConfig:
     output_every: int = 1
     moves_drop_null: bool = True
     start_ramp_s: float = 0.0
+    start_ramp_m: float = 0.0
     resample: bool = True
     noise_var: tuple[float, ...] | None = None
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
@@ -122,6 +129,9 @@ class RBPFConfig:
         if not 0.0 <= self.start_ramp_s <= 60.0:
             raise EstimatorError(f"expected start_ramp_s in [0, 60] s, got "
                                  f"{self.start_ramp_s}")
+        if not 0.0 <= self.start_ramp_m <= 1000.0:
+            raise EstimatorError(f"expected start_ramp_m in [0, 1000] m, got "
+                                 f"{self.start_ramp_m}")
         if self.mode not in MODES:
             raise EstimatorError(f"expected mode 'exact' or 'fast', got {self.mode!r}")
         if self.floor_reference not in ("nominal", "value"):

@@ -40,7 +40,7 @@ def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
                       seed=cfg.seed, ar_paper=cfg.track_roughness,
                       estimate_ar=cfg.estimate_track_roughness,
                       walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode,
-                      start_ramp_s=cfg.start_ramp_s)
+                      start_ramp_s=cfg.start_ramp_s, start_ramp_m=cfg.start_ramp_m)
     return NoiseCheckedStart(rbpf) if cfg.sensor_noise == "measured" else RBPF(rbpf)
 
 
