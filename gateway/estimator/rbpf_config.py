@@ -64,7 +64,8 @@ class RBPFConfig:
     service uses 1 s (:class:`gateway.config.EstimatorConfig`; docs/estimator.md
     "Calibration of the stated sigma");
     ``start_ramp_m``: the same ramp lasts at least this much track (m), at the speed of
-    the filter start: ``max(start_ramp_s, start_ramp_m / v)``. The kinematic mode, which
+    the first data after the filter start: ``max(start_ramp_s, start_ramp_m / v)``
+    (checkpointed once set). The kinematic mode, which
     carries most of λ's information, has a fixed wavelength, so a ramp in seconds covers
     fewer of its cycles at low speed; 0 (default) keeps the ramp in seconds alone; the
     service uses 42.5 m, 1 s at the paper's speed (docs/estimator.md "The start's ramp
