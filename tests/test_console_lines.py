@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from fakes.example_view import ExampleView
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from gateway.console.engine import Console
@@ -145,14 +145,19 @@ def fuzz_console(clock: Clock) -> tuple[Console, list[int]]:
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(chunk, max_size=12), st.lists(st.floats(0, 700), max_size=12))
+@example(chunks=[b" " * 42, b"\x15"], steps=[])      # Ctrl-U erases a line typed earlier
 def test_arbitrary_bytes_never_raise_and_every_reply_is_bounded(chunks, steps):
+    """Echo is at most 3 bytes per byte read, plus one erase of the line pending from
+    earlier reads (Ctrl-U: at most ``max_line_bytes`` characters, 3 bytes each); replies
+    are the commands' own, each capped."""
     clock = Clock()
     console, sizes = fuzz_console(clock)
     for i, data in enumerate(chunks):
         if i < len(steps):
             clock.t += steps[i]
         out = console.feed(data) + console.poll()
-        assert len(out) <= 3 * len(data) + sum(sizes) + MAX_PROMPT_AND_NOTICE
+        pending = 3 * console.limits.max_line_bytes
+        assert len(out) <= 3 * len(data) + pending + sum(sizes) + MAX_PROMPT_AND_NOTICE
     assert console.internal_errors == 0
     assert all(n <= console.limits.reply_max_bytes + MAX_PROMPT_AND_NOTICE for n in sizes)
 
@@ -173,3 +178,18 @@ def test_in_json_mode_every_reply_line_parses(chunks):
         assert isinstance(obj, dict) and isinstance(obj["ok"], bool)
         assert len(raw) + 2 <= console.limits.reply_max_bytes
     assert console.internal_errors == 0
+
+
+def test_ctrl_u_erases_the_line_typed_in_earlier_reads() -> None:
+    """Ctrl-U alone erases every character typed before it, one BS-space-BS each."""
+    got: list[Event] = []
+
+    def handle(event: Event) -> bytes:
+        got.append(event)
+        return b""
+
+    lines = LineDiscipline(128)
+    assert lines.feed(b"ack 3", handle) == b"ack 3"
+    assert lines.feed(b"\x15", handle) == b"\b \b" * 5
+    lines.feed(b"help\r", handle)
+    assert got == [Line("help")]
