@@ -33,12 +33,19 @@ def alerts(est: Sequence[Estimate], act_on_located: bool = True, on_range: bool 
             if a.state.name == "RAISED"]
 
 
+def _first_after(raised: Raised, name: str, after_s: float) -> tuple[float, str] | None:
+    """(data time, severity) of the first alert on ``name`` after ``after_s`` (s)."""
+    return next(((t, sev) for t, n, sev in raised if n == name and t > after_s), None)
+
+
 def _first(raised: Raised, name: str, after_s: float, severity: str | None = None
            ) -> float | None:
     """Data time after ``after_s`` (s, rounded to 0.01) of the first alert on ``name``
     (of ``severity`` only, if given; an ALARM counts from the start of the run)."""
-    times = [t - after_s for t, n, sev in raised if n == name
-             and (t > after_s if severity is None else sev == severity)]
+    if severity is None:
+        first = _first_after(raised, name, after_s)
+        return None if first is None else round(first[0] - after_s, 2)
+    times = [t - after_s for t, n, sev in raised if n == name and sev == severity]
     return round(times[0], 2) if times else None
 
 
@@ -63,7 +70,7 @@ def alert_columns(est: Sequence[Estimate], name: str, fault_at_s: float) -> dict
             "alerts_healthy_on_range": sum(n != name for _, n, _ in ranged),
             "severity_max": _highest(raised, name),
             "severity_max_on_range": _highest(ranged, name),
-            "alert_severity": next((sev for t, n, sev in raised
-                                    if n == name and t > fault_at_s), None),
+            "alert_severity": (first[1] if (first := _first_after(raised, name, fault_at_s))
+                               else None),
             "alerts_healthy": sum(n != name for _, n, _ in raised),
             "alerts_before": sum(t <= fault_at_s for t, _, _ in raised)}
