@@ -349,7 +349,9 @@ class RBPF:
         return min(self._warm_steps(), int(round(SETTLE_S * self.config.fs_hz)))
 
     def _start_ramp(self) -> None:
-        """A filter start: the ramp starts with the next data (:meth:`_ramp_steps`)."""
+        """A filter start: the ramp starts with the next data. Its length here is
+        provisional (positive whenever a ramp is configured, so :attr:`_in_ramp` holds
+        until the first data); :meth:`_ramp` sets it again at the first data's speed."""
         self._ramp_from = self._data_since_start
         self._ramp_n = self._ramp_steps()
 
