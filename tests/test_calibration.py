@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_sim.studies.calibration import box_theta, rows_for, summary
+from firmware_sim.studies.calibration import box_theta, main, rows_for, summary, window
 from gateway.estimator.rbpf_config import RBPFConfig
 
 
@@ -99,3 +99,51 @@ def test_a_record_from_rest_is_another_truth_start_and_the_default_is_unchanged(
     rows = [{"study": "paper", "sensors": 3, "t_s": 5.0, "z": [0.0, 0.0, 0.0],
              "from_rest": fr} for fr in (False, True)]
     assert [r["from_rest"] for r in summary(rows)] == [False, True]
+
+
+def _row(seed: int, t_s: float, z: list[float], theta_name: str = "nominal") -> dict:
+    return {"study": "paper", "theta_name": theta_name, "sensors": 3, "seed": seed,
+            "t_s": t_s, "z": z, "err_pct": [2 * v for v in z]}
+
+
+def test_window_averages_each_record_over_its_check_times_then_over_records() -> None:
+    """A bias over minutes is each record's z averaged over the window, then over the
+    records: seed 1 averages -1 and 0 to -0.5, seed 2 averages 1 and 2 to 1.5, so the
+    mean is 0.5 with a standard error of 1.0; the check at 10 s lies outside [60, 120]
+    and the paper vehicle's rows are another case."""
+    rows = [_row(1, 10.0, [9.0] * 3), _row(1, 60.0, [-1.0] * 3), _row(1, 120.0, [0.0] * 3),
+            _row(2, 60.0, [1.0] * 3), _row(2, 120.0, [2.0] * 3),
+            _row(3, 60.0, [-5.0] * 3, theta_name="paper")]
+    nominal, paper = sorted(window(rows, 60.0, 120.0), key=lambda r: r["theta_name"])
+    assert (nominal["records"], nominal["checks"], paper["records"]) == (2, 2, 1)
+    assert nominal["conicity_mean_z"] == 0.5 and nominal["conicity_se_z"] == 1.0
+    assert nominal["conicity_mean_err_pct"] == 1.0 and nominal["conicity_below"] == 1
+    assert paper["conicity_mean_z"] == -5.0 and paper["conicity_se_z"] is None
+    assert [r["theta_name"] for r in summary(rows)].count("nominal") == 3
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["window", "60"], "expected window LO HI"),
+    (["window", "120", "60"], "expected window LO HI"),
+    (["summary", "60", "120"], "expected LO HI only with window"),
+    (["box", "--theta", "nominal"], "expected --theta only with paper")])
+def test_the_study_refuses_a_wrong_window_or_vehicle_in_one_line(
+        argv: list[str], expected: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as ex:
+        main(argv)
+    assert ex.value.code == 2
+    assert expected in capsys.readouterr().err
+
+
+def test_the_paper_study_runs_the_nominal_vehicle_when_asked() -> None:
+    """``--theta nominal``: the record is made at the service's nominal vehicle and the
+    row says so; the default stays the paper's Sec. 4.2 vehicle."""
+    from gateway.model.vehicle import THETA_NOMINAL, THETA_SEC42
+
+    (nominal,) = rows_for("paper", 5, 3, 64, "fast", ml=False, at_s=(0.5,),
+                          theta_name="nominal")
+    (paper,) = rows_for("paper", 5, 3, 64, "fast", ml=False, at_s=(0.5,))
+    assert nominal["truth"] == THETA_NOMINAL.as_array().tolist()
+    assert paper["truth"] == THETA_SEC42.as_array().tolist()
+    assert (nominal["theta_name"], paper["theta_name"]) == ("nominal", "paper")
+    assert nominal["mean"] != paper["mean"]

@@ -25,9 +25,16 @@ the filters predict through it). ``--from-rest`` starts the truth at rest instea
 stationary vibration (another simulator's convention;
 :func:`firmware_sim.truth.simulate` ``burn_in_s`` = 0).
 
+``--theta nominal`` runs the paper scenario on the service's nominal vehicle
+(:data:`gateway.model.vehicle.THETA_NOMINAL`) instead of the paper's Sec. 4.2 values.
+
 ``summary < rows.jsonl`` gives, per (study, option, sensors, time): the share of records
 with the truth inside +-2 sigma per parameter, the largest |z|, and the smallest
-sigma / sigma_ML.
+sigma / sigma_ML. ``window LO HI < rows.jsonl`` gives, per case, each record's z
+averaged over its check times in [LO, HI] s, then the mean over records with its
+standard error and the records below the truth: a bias over minutes, which one check
+time cannot show (with the parameters' random walk an estimate remembers only its last
+few seconds of data).
 Data seed ``3000 + seed`` (paper) or ``4000 + seed`` (box), fresh against the accuracy
 (1000 +) and detection (2000 +) studies; filter seed ``seed``. A measuring tool, not used
 by the service.
@@ -49,11 +56,12 @@ from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
-from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42, sensor_set
+from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, THETA_SEC42, sensor_set
 
 PAPER_AT_S = (5.0, 20.0)
 BOX_AT_S = (10.0,)
 SEED_OFFSET = {"paper": 3000, "box": 4000}
+PAPER_THETA = {"paper": THETA_SEC42, "nominal": THETA_NOMINAL}
 
 
 def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float,
@@ -90,15 +98,16 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              ml: bool, at_s: Sequence[float] | None = None,
              moves_drop_null: bool | None = None, from_rest: bool = False,
              start_ramp_s: float | None = None, hold: tuple[float, float] | None = None,
-             speed_mps: float = V_MPS, start_ramp_m: float | None = None
-             ) -> list[dict[str, Any]]:
+             speed_mps: float = V_MPS, start_ramp_m: float | None = None,
+             theta_name: str = "paper") -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
     None: the default), and ``start_ramp_s`` and ``start_ramp_m`` those; ``from_rest``:
     the truth starts at rest; ``hold`` (start, length) in s: no updates then, as the
-    gate holds them in a curve; ``speed_mps``: the vehicle's constant speed."""
-    theta = THETA_SEC42.as_array() if what == "paper" else box_theta(seed)
+    gate holds them in a curve; ``speed_mps``: the vehicle's constant speed;
+    ``theta_name``: the paper study's vehicle, a key of :data:`PAPER_THETA`."""
+    theta = PAPER_THETA[theta_name].as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps)
     filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
@@ -110,7 +119,8 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
         e = min(est, key=lambda x: abs(x.t_s - t))
         m, s = np.array(e.mean[:3]), np.array(e.std[:3])
         row: dict[str, Any] = {
-            "study": what, "sensors": sensors, "speed_mps": speed_mps, "seed": seed,
+            "study": what, "theta_name": theta_name if what == "paper" else "box",
+            "sensors": sensors, "speed_mps": speed_mps, "seed": seed,
             "t_s": t, "mode": mode,
             "moves_drop_null": filt.config.moves_drop_null,
             "from_rest": from_rest, "start_ramp_s": filt.config.start_ramp_s,
@@ -130,25 +140,28 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
     return out
 
 
-def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per (study, option, sensors, t_s): records; per parameter the share with |z| <= 2, the
-    largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
-    def key_of(r: dict[str, Any]
-               ) -> tuple[str, bool, float, bool, int, float, str, str, float, float]:
-        return (r["study"], bool(r.get("moves_drop_null", False)),
-                float(r.get("start_ramp_s", 0.0)), bool(r.get("from_rest", False)),
-                r["sensors"], r["t_s"], r.get("mode", "fast"), str(r.get("hold")),
-                float(r.get("speed_mps", V_MPS)), float(r.get("start_ramp_m", 0.0)))
+CASE_FIELDS = ("study", "theta_name", "moves_drop_null", "start_ramp_s", "from_rest",
+               "sensors", "mode", "hold", "speed_mps", "start_ramp_m")
 
+
+def case_of(r: dict[str, Any]) -> tuple[Any, ...]:
+    """A row's case, :data:`CASE_FIELDS` in order (older rows lack some: their defaults)."""
+    return (r["study"], r.get("theta_name", "paper" if r["study"] == "paper" else "box"),
+            bool(r.get("moves_drop_null", False)), float(r.get("start_ramp_s", 0.0)),
+            bool(r.get("from_rest", False)), r["sensors"], r.get("mode", "fast"),
+            str(r.get("hold")), float(r.get("speed_mps", V_MPS)),
+            float(r.get("start_ramp_m", 0.0)))
+
+
+def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per case (:func:`case_of`) and t_s: records; per parameter the share with |z| <= 2,
+    the largest |z|, the smallest sigma / sigma_ML (and the ML's own |z| <= 2 share)."""
     out = []
-    for key in sorted({key_of(r) for r in rows}):
-        case = [r for r in rows if key_of(r) == key]
+    for key in sorted({(case_of(r), r["t_s"]) for r in rows}):
+        case = [r for r in rows if (case_of(r), r["t_s"]) == key]
         z = np.abs(np.array([r["z"] for r in case]))
-        row: dict[str, Any] = {"study": key[0], "moves_drop_null": key[1],
-                               "start_ramp_s": key[2], "from_rest": key[3],
-                               "sensors": key[4], "t_s": key[5], "mode": key[6],
-                               "hold": key[7], "speed_mps": key[8],
-                               "start_ramp_m": key[9], "records": len(case)}
+        row: dict[str, Any] = dict(zip(CASE_FIELDS, key[0], strict=True))
+        row.update(t_s=key[1], records=len(case))
         for i, name in enumerate(PARAM_NAMES):
             row[f"{name}_within_2sigma"] = round(float(np.mean(z[:, i] <= 2.0)), 3)
             row[f"{name}_max_abs_z"] = round(float(z[:, i].max()), 2)
@@ -162,11 +175,44 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def window(rows: Sequence[dict[str, Any]], lo_s: float, hi_s: float
+           ) -> list[dict[str, Any]]:
+    """Per case (:func:`case_of`): each record's z and error (%) averaged over its check
+    times in [lo_s, hi_s]; per parameter the mean of those over the records, its standard
+    error, and the records whose average error is below the truth."""
+    inside = [r for r in rows if lo_s <= r["t_s"] <= hi_s]
+    out = []
+    for key in sorted({case_of(r) for r in inside}):
+        per_seed: dict[int, list[dict[str, Any]]] = {}
+        for r in inside:
+            if case_of(r) == key:
+                per_seed.setdefault(r["seed"], []).append(r)
+        z = np.array([np.mean([r["z"] for r in rs], axis=0) for rs in per_seed.values()])
+        err = np.array([np.mean([r["err_pct"] for r in rs], axis=0)
+                        for rs in per_seed.values()])
+        n = len(z)
+        row: dict[str, Any] = dict(zip(CASE_FIELDS, key, strict=True))
+        row.update(from_s=lo_s, to_s=hi_s, records=n,
+                   checks=int(np.mean([len(rs) for rs in per_seed.values()])))
+        se = z.std(axis=0, ddof=1) / np.sqrt(n) if n > 1 else None
+        for i, name in enumerate(PARAM_NAMES):
+            row[f"{name}_mean_z"] = round(float(z[:, i].mean()), 3)
+            row[f"{name}_se_z"] = None if se is None else round(float(se[i]), 3)
+            row[f"{name}_mean_err_pct"] = round(float(err[:, i].mean()), 3)
+            row[f"{name}_below"] = int((err[:, i] < 0).sum())
+        out.append(row)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m firmware_sim.studies.calibration",
                                  description=__doc__.split("\n")[0])
-    ap.add_argument("what", choices=("paper", "box", "summary"),
-                    help="summary: read the rows (JSON lines) from stdin")
+    ap.add_argument("what", choices=("paper", "box", "summary", "window"),
+                    help="summary, window: read the rows (JSON lines) from stdin")
+    ap.add_argument("window_s", type=float, nargs="*", metavar="LO HI",
+                    help="window: the check times averaged, from LO to HI s")
+    ap.add_argument("--theta", choices=sorted(PAPER_THETA), default="paper",
+                    help="paper: the vehicle (default: the paper's Sec. 4.2 values)")
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(1, 21)))
     ap.add_argument("--sensors", type=int, nargs="+", default=[3, 5])
     ap.add_argument("--particles", type=int, default=1000)
@@ -192,9 +238,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not 0 < args.speed_mps <= 150:
         ap.error(f"expected 0 < --speed-mps <= 150 m/s, got {args.speed_mps}")
-    if args.what == "summary":
+    if (args.what == "window") != bool(args.window_s):
+        ap.error("expected LO HI only with window, got " + " ".join(map(str, args.window_s)))
+    if args.what == "window" and not (len(args.window_s) == 2
+                                      and args.window_s[0] <= args.window_s[1]):
+        ap.error(f"expected window LO HI with LO <= HI, got {args.window_s}")
+    if args.what == "box" and args.theta != "paper":
+        ap.error(f"expected --theta only with paper (box draws its own), got {args.theta}")
+    if args.what in ("summary", "window"):
         rows = [json.loads(line) for line in sys.stdin if line.strip()]
-        for row in summary(rows):
+        found = summary(rows) if args.what == "summary" else window(rows, *args.window_s)
+        for row in found:
             print(json.dumps(row))
         return 0
     for seed in args.seeds:
@@ -205,7 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 from_rest=args.from_rest, start_ramp_s=args.start_ramp_s,
                                 hold=None if args.hold is None else tuple(args.hold),
                                 speed_mps=args.speed_mps,
-                                start_ramp_m=args.start_ramp_m):
+                                start_ramp_m=args.start_ramp_m, theta_name=args.theta):
                 print(json.dumps(row), flush=True)
     return 0
 
