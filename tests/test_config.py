@@ -61,6 +61,8 @@ def test_missing_file(tmp_path):
     ("[estimator]\ndrift_per_sqrt_s = 5.0\n", 2, "[estimator] drift_per_sqrt_s: expected a "
                                                   "value in [0, 0.5], got 5.0"),
     ("[estimator]\nparticles = 1\n", 2, "[estimator] particles: expected a value in [2,"),
+    ("[estimator]\nkernel_delta = 0.9\n", 2, "[estimator] kernel_delta: expected a value "
+                                            "in [0.95, 0.9999] (or 0 = auto), got 0.9"),
     ("[resampler]\ndeadline_s = inf\n", 2, "[resampler] deadline_s: expected a finite number"),
     ("[resampler]\nfs_hz = inf\n", 2, "[resampler] fs_hz: expected a finite number"),
     ("[resampler]\nfs_hz = nan\n", 2, "[resampler] fs_hz: expected a finite number"),

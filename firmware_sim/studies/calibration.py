@@ -25,6 +25,7 @@ the filters predict through it). ``--from-rest`` starts the truth at rest instea
 stationary vibration (another simulator's convention;
 :func:`firmware_sim.truth.simulate` ``burn_in_s`` = 0).
 
+``--kernel-delta`` runs the service's filter with that ``[estimator] kernel_delta``.
 ``--theta nominal`` runs the paper scenario on the service's nominal vehicle
 (:data:`gateway.model.vehicle.THETA_NOMINAL`) instead of the paper's Sec. 4.2 values.
 
@@ -50,10 +51,10 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection import FS_HZ, V_MPS, run, service_filter
+from firmware_sim.studies.detection import FS_HZ, V_MPS, kernel_delta, run, service_filter
 from firmware_sim.studies.holds import holds
 from firmware_sim.truth import BURN_IN_S, measured
-from gateway.estimator.rbpf_config import RBPFConfig
+from gateway.estimator.rbpf_config import PAPER_DELTA, RBPFConfig
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, THETA_SEC42, sensor_set
@@ -99,19 +100,22 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              moves_drop_null: bool | None = None, from_rest: bool = False,
              start_ramp_s: float | None = None, hold: tuple[float, float] | None = None,
              speed_mps: float = V_MPS, start_ramp_m: float | None = None,
-             theta_name: str = "paper") -> list[dict[str, Any]]:
+             theta_name: str = "paper", kernel_delta: float | None = None
+             ) -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
     None: the default), and ``start_ramp_s`` and ``start_ramp_m`` those; ``from_rest``:
     the truth starts at rest; ``hold`` (start, length) in s: no updates then, as the
     gate holds them in a curve; ``speed_mps``: the vehicle's constant speed;
-    ``theta_name``: the paper study's vehicle, a key of :data:`PAPER_THETA`."""
+    ``theta_name``: the paper study's vehicle, a key of :data:`PAPER_THETA`;
+    ``kernel_delta``: the service's ``[estimator] kernel_delta`` (None: its default)."""
     theta = PAPER_THETA[theta_name].as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps)
     filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
-                          start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m)
+                          start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m,
+                          kernel_delta=kernel_delta)
     held = None if hold is None else holds(len(Y), FS_HZ, [hold[0]], hold[1])
     est, found, _ = run(Y, filt, held=held, speed_mps=speed_mps)
     out = []
@@ -124,7 +128,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
             "t_s": t, "mode": mode,
             "moves_drop_null": filt.config.moves_drop_null,
             "from_rest": from_rest, "start_ramp_s": filt.config.start_ramp_s,
-            "start_ramp_m": filt.config.start_ramp_m,
+            "start_ramp_m": filt.config.start_ramp_m, "kernel_delta": filt.config.delta,
             "hold": None if hold is None else list(hold),
             "particles": particles, "truth": theta.tolist(), "mean": m.tolist(),
             "std": s.tolist(), "z": np.round((m - theta) / s, 3).tolist(),
@@ -141,7 +145,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
 
 
 CASE_FIELDS = ("study", "theta_name", "moves_drop_null", "start_ramp_s", "from_rest",
-               "sensors", "mode", "hold", "speed_mps", "start_ramp_m")
+               "sensors", "mode", "hold", "speed_mps", "start_ramp_m", "kernel_delta")
 
 
 def case_of(r: dict[str, Any]) -> tuple[Any, ...]:
@@ -150,7 +154,7 @@ def case_of(r: dict[str, Any]) -> tuple[Any, ...]:
             bool(r.get("moves_drop_null", False)), float(r.get("start_ramp_s", 0.0)),
             bool(r.get("from_rest", False)), r["sensors"], r.get("mode", "fast"),
             str(r.get("hold")), float(r.get("speed_mps", V_MPS)),
-            float(r.get("start_ramp_m", 0.0)))
+            float(r.get("start_ramp_m", 0.0)), float(r.get("kernel_delta", PAPER_DELTA)))
 
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -211,6 +215,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="summary, window: read the rows (JSON lines) from stdin")
     ap.add_argument("window_s", type=float, nargs="*", metavar="LO HI",
                     help="window: the check times averaged, from LO to HI s")
+    ap.add_argument("--kernel-delta", type=kernel_delta, default=None,
+                    help="the service's [estimator] kernel_delta (default: the service's)")
     ap.add_argument("--theta", choices=sorted(PAPER_THETA), default="paper",
                     help="paper: the vehicle (default: the paper's Sec. 4.2 values)")
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(1, 21)))
@@ -259,7 +265,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 from_rest=args.from_rest, start_ramp_s=args.start_ramp_s,
                                 hold=None if args.hold is None else tuple(args.hold),
                                 speed_mps=args.speed_mps,
-                                start_ramp_m=args.start_ramp_m, theta_name=args.theta):
+                                start_ramp_m=args.start_ramp_m, theta_name=args.theta,
+                                kernel_delta=args.kernel_delta):
                 print(json.dumps(row), flush=True)
     return 0
 

@@ -53,7 +53,7 @@ from firmware_sim.studies.detection_alerts import alert_columns, alerts
 from firmware_sim.studies.detection_report import plot, summary
 from firmware_sim.studies.holds import holds, periodic_holds
 from firmware_sim.truth import SENSOR_NOISE_VAR, measured
-from gateway.config import EstimatorConfig
+from gateway.config import DOMAINS, EstimatorConfig, Range
 from gateway.errors import InputError
 from gateway.estimator.faultbank import REDRAWS, FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
@@ -104,15 +104,19 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    start_ramp_s: float | None = None, locate_min_s: float | None = None,
                    locate_max_s: float | None = None, replay_s: float | None = None,
                    redraw_from: str | None = None,
-                   start_ramp_m: float | None = None) -> Filter:
+                   start_ramp_m: float | None = None,
+                   kernel_delta: float | None = None) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
     sensor-noise test, the start's likelihood ramp); ``moves_drop_null``,
     ``start_ramp_s`` and ``start_ramp_m`` override those options of the filter, ``locate_min_s``,
     ``locate_max_s``, ``replay_s`` and ``redraw_from`` those of its fault bank
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`,
-    :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's)."""
+    :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's);
+    ``kernel_delta`` the service's ``[estimator] kernel_delta`` (with its floor)."""
     cfg = replace(EstimatorConfig(), sensors=sensors, seed=seed, particles=particles,
                   mode=mode, sensor_noise=sensor_noise)
+    if kernel_delta is not None:
+        cfg = replace(cfg, kernel_delta=kernel_delta)
     filt = build_estimator(cfg, FS_HZ)
     assert isinstance(filt, (RBPF, NoiseCheckedStart))
     rbpf = replace(filt.config,
@@ -188,7 +192,8 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
               locate_min_s: float | None = None, locate_max_s: float | None = None,
               replay_s: float | None = None, hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
               dead: Sequence[str] = (), speed_mps: float = V_MPS,
-              redraw_from: str | None = None) -> dict[str, Any]:
+              redraw_from: str | None = None,
+              kernel_delta: float | None = None) -> dict[str, Any]:
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale,
                        speed_mps)
     Y = without(Y, sensors, dead)
@@ -196,7 +201,8 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s, replay_s=replay_s,
-                                             redraw_from=redraw_from),
+                                             redraw_from=redraw_from,
+                                             kernel_delta=kernel_delta),
                            held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None,
                            speed_mps=speed_mps)
     wall = time.perf_counter() - t0
@@ -210,6 +216,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
             "speed_mps": speed_mps, "noise_scale": noise_scale, **_noise_columns(filt),
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
+            "kernel_delta": filt.config.delta,
             "hold_at_s": list(hold_at_s) or None, "hold_s": hold_s if hold_at_s else None,
             "seed": seed, "mode": mode, "particles": particles, "fault_at_s": fault_at_s,
             "dead": list(dead) or None,
@@ -238,14 +245,16 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
                 locate_max_s: float | None = None, replay_s: float | None = None,
                 hold_every_s: float | None = None,
                 hold_s: float = 3.0, dead: Sequence[str] = (),
-                speed_mps: float = V_MPS, redraw_from: str | None = None) -> dict[str, Any]:
+                speed_mps: float = V_MPS, redraw_from: str | None = None,
+                kernel_delta: float | None = None) -> dict[str, Any]:
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale, speed_mps)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s, replay_s=replay_s,
-                                             redraw_from=redraw_from),
+                                             redraw_from=redraw_from,
+                                             kernel_delta=kernel_delta),
                            held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s),
                            speed_mps=speed_mps)
     last = est[-1]
@@ -255,6 +264,7 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
             "noise_scale": noise_scale, **_noise_columns(filt),
             "hold_every_s": hold_every_s, "hold_s": hold_s if hold_every_s else None,
             "moves_drop_null": filt.config.moves_drop_null, **_bank_columns(filt),
+            "kernel_delta": filt.config.delta,
             "particles": particles, "seconds": seconds, "detections": len(found),
             "alerts": len(alerts(est)),
             "detail": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
@@ -282,6 +292,22 @@ def fault_case(text: str) -> tuple[int, float]:
                                          f"{PARAM_NAMES} (a prefix will do) and FACTOR > 0, "
                                          f"got {text!r}")
     return matches[0], value
+
+
+def kernel_delta(text: str) -> float:
+    """An argparse type: a value of the service's ``[estimator] kernel_delta`` (its
+    configuration domain)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number for the kernel delta, got "
+                                         f"{text!r}") from None
+    domain = DOMAINS[("estimator", "kernel_delta")]
+    assert isinstance(domain, Range)
+    problem = domain.problem(value)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(f"kernel delta: {problem}")
+    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -336,6 +362,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--replay-s", type=float, default=None,
                     help="the fault bank's look-back, s (default: the bank's own; 0: the "
                          "location starts at the confirmation)")
+    ap.add_argument("--kernel-delta", type=kernel_delta, default=None,
+                    help="the service's [estimator] kernel_delta (default: the service's)")
     args = ap.parse_args(argv)
     if args.hold_every_s is not None and not args.hold_every_s > args.hold_s > 0:
         ap.error(f"expected --hold-every-s > --hold-s > 0 s, got {args.hold_every_s} and "
@@ -369,7 +397,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     replay_s=args.replay_s,
                                     hold_every_s=args.hold_every_s, hold_s=args.hold_s,
                                     dead=args.dead, speed_mps=args.speed_mps,
-                                    redraw_from=args.redraw_from)]
+                                    redraw_from=args.redraw_from,
+                                    kernel_delta=args.kernel_delta)]
             else:
                 rows = [fault_row(p, f, ns, seed, seconds=args.seconds or 18.0,
                                   fault_at_s=args.fault_at, particles=args.particles,
@@ -381,7 +410,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   replay_s=args.replay_s,
                                   hold_at_s=args.hold_at_s, hold_s=args.hold_s,
                                   dead=args.dead, speed_mps=args.speed_mps,
-                                  redraw_from=args.redraw_from)
+                                  redraw_from=args.redraw_from,
+                                  kernel_delta=args.kernel_delta)
                         for p, f in args.cases]
             for row in rows:
                 print(json.dumps(row), flush=True)

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.studies.calibration import SEED_OFFSET, record
-from firmware_sim.studies.detection import FS_HZ, run
+from firmware_sim.studies.detection import FS_HZ, V_MPS, run
 from gateway.estimator.rbpf import RBPF
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42
@@ -62,11 +62,12 @@ class GridPosterior:
 
 
 def grid_posterior(Y: np.ndarray, sensors: int, centre: np.ndarray,
-                   half_log: Sequence[float], points: int) -> GridPosterior:
+                   half_log: Sequence[float], points: int,
+                   speed_mps: float = V_MPS) -> GridPosterior:
     """Weigh the grid ``centre * exp(u)`` (``points``^3 values, ``u`` evenly over
     ``[-half_log, half_log]``, (3,) in log units; ``points`` even, so ``centre`` lies
     between the two middle values) by the exact log-likelihood of ``Y`` (T, ny) at 1 kHz
-    and 42.5 m/s."""
+    and ``speed_mps``."""
     if points < 2 or points % 2:
         raise ValueError(f"expected an even number of grid points >= 2, got {points}")
     centre = np.asarray(centre, dtype=float)
@@ -77,7 +78,7 @@ def grid_posterior(Y: np.ndarray, sensors: int, centre: np.ndarray,
                      resample=False, monitor=None, faults=None, start_ramp_s=0.0, seed=0)
     filt = RBPF(cfg)
     filt.set_particles(theta)
-    run(Y, filt)
+    run(Y, filt, speed_mps=speed_mps)
     w = np.exp(filt.logw - filt.logw.max())
     w /= w.sum()
     mean = w @ theta

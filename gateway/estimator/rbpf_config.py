@@ -9,6 +9,7 @@ import numpy as np
 from gateway.errors import EstimatorError
 from gateway.estimator.faultbank import FaultBankConfig
 from gateway.estimator.monitor import MonitorConfig
+from gateway.estimator.particles import shrinkage
 from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
     PARAM_NAMES,
@@ -23,6 +24,47 @@ MODES = ("exact", "fast")
 """Estimator modes: the exact recursion (reference) and steady-state gains (fast)."""
 AR_NAME = "ar_paper"
 """Name of the optional 4th parameter (Ar in the paper's printed units)."""
+PAPER_DELTA = 0.99
+"""The paper's Liu-West discount per sample."""
+PAPER_FLOOR_REL = 1e-3
+"""The paper's roughening-std floor per sample, a fraction of nominal (at PAPER_DELTA)."""
+
+
+AUTO_DELTA = 0.999
+"""The kernel discount ``[estimator] kernel_delta = 0`` (auto) takes from
+:data:`AUTO_DELTA_MIN_PARTICLES` particles on (docs/estimator.md "The kernel's discount
+and the Monte Carlo error")."""
+AUTO_DELTA_MIN_PARTICLES = 250
+"""Below this many particles auto takes the paper's discount: a kernel that re-draws
+less needs enough particles to stay diverse (measured: at m = 64, 0.999 was far worse
+than 0.99; at m = 250 and 1000 better; between 64 and 250 not measured)."""
+
+
+def kernel_delta_for(configured: float, particles: int) -> float:
+    """The Liu-West discount the service's filter runs with: ``configured``, or for 0
+    (auto) :data:`AUTO_DELTA` from :data:`AUTO_DELTA_MIN_PARTICLES` particles on and the
+    paper's below."""
+    if configured != 0.0:
+        return configured
+    return AUTO_DELTA if particles >= AUTO_DELTA_MIN_PARTICLES else PAPER_DELTA
+
+
+def floor_for_delta(delta: float) -> float:
+    """The per-sample roughening floor at Liu-West ``delta`` that keeps the paper's floor
+    on the cloud's spread.
+
+    The kernel holds a particle cloud with no information at a spread of about
+    ``floor / h`` (``h^2 = 1 - a^2``, ``a`` the shrinkage): 0.1 % / 0.1 = about 1 % of
+    nominal at the paper's delta. A larger delta has a smaller h, so it takes a floor
+    smaller by ``h(delta) / h(0.99)`` (0.315 at delta 0.999) for the same 1 %.
+    """
+    if not 0.0 < delta < 1.0:
+        raise EstimatorError(f"expected 0 < delta < 1, got {delta}")
+    def h2(d: float) -> float:
+        a = shrinkage(d)
+        return 1.0 - a * a
+
+    return float(PAPER_FLOOR_REL * (h2(delta) / h2(PAPER_DELTA)) ** 0.5)
 
 
 @dataclass(frozen=True)
@@ -82,7 +124,7 @@ class RBPFConfig:
 
     fs_hz: float
     n_particles: int = 1000
-    delta: float = 0.99
+    delta: float = PAPER_DELTA
     ess_threshold: float = 0.2
     sensors: int = 3
     ar_paper: float = AR_PAPER_DEFAULT
@@ -96,7 +138,7 @@ class RBPFConfig:
     reseed_hi: tuple[float, float, float] = (2.5, 2.5, 3.5)
     reseed_fraction: float = 0.5
     ar_prior: tuple[float, float] = (0.25, 4.0)
-    floor_rel: float = 1e-3
+    floor_rel: float = PAPER_FLOOR_REL
     walk_rel_per_sqrt_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     floor_reference: str = "nominal"
     speed_tol: float = 2e-3

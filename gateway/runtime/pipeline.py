@@ -35,12 +35,15 @@ def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
     with ``sensor_noise = "measured"`` it starts with the noise test."""
     from gateway.estimator.noisestart import NoiseCheckedStart
     from gateway.estimator.rbpf import RBPF, RBPFConfig
+    from gateway.estimator.rbpf_config import floor_for_delta, kernel_delta_for
 
+    delta = kernel_delta_for(cfg.kernel_delta, cfg.particles)
     rbpf = RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
                       seed=cfg.seed, ar_paper=cfg.track_roughness,
                       estimate_ar=cfg.estimate_track_roughness,
                       walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode,
-                      start_ramp_s=cfg.start_ramp_s, start_ramp_m=cfg.start_ramp_m)
+                      start_ramp_s=cfg.start_ramp_s, start_ramp_m=cfg.start_ramp_m,
+                      delta=delta, floor_rel=floor_for_delta(delta))
     return NoiseCheckedStart(rbpf) if cfg.sensor_noise == "measured" else RBPF(rbpf)
 
 
