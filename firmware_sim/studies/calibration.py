@@ -51,7 +51,13 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection import FS_HZ, V_MPS, kernel_delta, run, service_filter
+from firmware_sim.studies.detection import (
+    FS_HZ,
+    V_MPS,
+    kernel_delta_arg,
+    run,
+    service_filter,
+)
 from firmware_sim.studies.holds import holds
 from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import PAPER_DELTA, RBPFConfig
@@ -215,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="summary, window: read the rows (JSON lines) from stdin")
     ap.add_argument("window_s", type=float, nargs="*", metavar="LO HI",
                     help="window: the check times averaged, from LO to HI s")
-    ap.add_argument("--kernel-delta", type=kernel_delta, default=None,
+    ap.add_argument("--kernel-delta", type=kernel_delta_arg, default=None,
                     help="the service's [estimator] kernel_delta (default: the service's)")
     ap.add_argument("--theta", choices=sorted(PAPER_THETA), default="paper",
                     help="paper: the vehicle (default: the paper's Sec. 4.2 values)")

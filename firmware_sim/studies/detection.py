@@ -294,7 +294,7 @@ def fault_case(text: str) -> tuple[int, float]:
     return matches[0], value
 
 
-def kernel_delta(text: str) -> float:
+def kernel_delta_arg(text: str) -> float:
     """An argparse type: a value of the service's ``[estimator] kernel_delta`` (its
     configuration domain)."""
     try:
@@ -362,7 +362,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--replay-s", type=float, default=None,
                     help="the fault bank's look-back, s (default: the bank's own; 0: the "
                          "location starts at the confirmation)")
-    ap.add_argument("--kernel-delta", type=kernel_delta, default=None,
+    ap.add_argument("--kernel-delta", type=kernel_delta_arg, default=None,
                     help="the service's [estimator] kernel_delta (default: the service's)")
     args = ap.parse_args(argv)
     if args.hold_every_s is not None and not args.hold_every_s > args.hold_s > 0:

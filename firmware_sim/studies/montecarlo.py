@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.studies.calibration import SEED_OFFSET, record
-from firmware_sim.studies.detection import V_MPS, kernel_delta, run, service_filter
+from firmware_sim.studies.detection import V_MPS, kernel_delta_arg, run, service_filter
 from firmware_sim.studies.grid_posterior import HALF_LOG_5S, grid_posterior
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42
 
@@ -54,6 +54,7 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
                               kernel_delta=delta)
         est, _, _ = run(Y, filt, speed_mps=speed_mps)
         ends.append((np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])))
+        ran = filt.config.delta                     # 0 (auto) resolved for this m
     means = np.array([m for m, _ in ends])          # (filter_seeds, 3)
     sigma = np.array([s for _, s in ends]).mean(0)
     half = np.array(HALF_LOG_5S[sensors]) * np.sqrt(5.0 / at_s)
@@ -62,7 +63,7 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
     grid = grid_posterior(Y, sensors, theta, half, GRID_POINTS, speed_mps)
     mc = means.std(0, ddof=1)
     return {"study": "montecarlo", "seed": seed, "sensors": sensors, "t_s": at_s,
-            "speed_mps": speed_mps, "kernel_delta": delta, "particles": particles,
+            "speed_mps": speed_mps, "kernel_delta": ran, "particles": particles,
             "filter_seeds": filter_seeds, "truth": theta.tolist(),
             "mean": means.mean(0).tolist(), "sigma": sigma.tolist(), "mc_sd": mc.tolist(),
             "grid_mean": grid.mean.tolist(), "grid_sd": grid.std.tolist(),
@@ -101,8 +102,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--speed-mps", type=float, default=V_MPS,
                     help="the vehicle's constant speed, m/s (default: the paper's 42.5)")
     ap.add_argument("--at-s", type=float, default=5.0, help="record length, s")
-    ap.add_argument("--kernel-delta", type=kernel_delta, nargs="+", default=[0.99],
-                    help="the service's [estimator] kernel_delta values to compare")
+    ap.add_argument("--kernel-delta", type=kernel_delta_arg, nargs="+",
+                    default=[0.99, 0.999],
+                    help="the service's [estimator] kernel_delta values to compare "
+                         "(default: the paper's 0.99 and auto's 0.999)")
     ap.add_argument("--filter-seeds", type=int, default=6,
                     help="filter runs per record and delta (at least 2)")
     ap.add_argument("--particles", type=int, default=1000)
