@@ -32,14 +32,11 @@ import numpy as np
 
 from firmware_sim.studies.calibration import SEED_OFFSET, record
 from firmware_sim.studies.detection import V_MPS, kernel_delta_arg, run, service_filter
-from firmware_sim.studies.grid_posterior import HALF_LOG_5S, grid_posterior
+from firmware_sim.studies.grid_posterior import grid_posterior, half_log_for
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42
 
 GRID_POINTS = 16
 """Grid values per parameter (16^3 filters: a few seconds per 5 s record)."""
-GRID_WIDEN_BELOW_40_MPS = 1.3
-"""Below 40 m/s the posterior is wider than HALF_LOG_5S assumes (measured: the faces
-held less than 1e-5 of the mass at 30 m/s with this widening)."""
 
 
 def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float,
@@ -57,10 +54,8 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
         ran = filt.config.delta                     # 0 (auto) resolved for this m
     means = np.array([m for m, _ in ends])          # (filter_seeds, 3)
     sigma = np.array([s for _, s in ends]).mean(0)
-    half = np.array(HALF_LOG_5S[sensors]) * np.sqrt(5.0 / at_s)
-    if speed_mps < 40.0:
-        half = half * GRID_WIDEN_BELOW_40_MPS
-    grid = grid_posterior(Y, sensors, theta, half, GRID_POINTS, speed_mps)
+    grid = grid_posterior(Y, sensors, theta, half_log_for(sensors, at_s, speed_mps),
+                          GRID_POINTS, speed_mps)
     mc = means.std(0, ddof=1)
     return {"study": "montecarlo", "seed": seed, "sensors": sensors, "t_s": at_s,
             "speed_mps": speed_mps, "kernel_delta": ran, "particles": particles,

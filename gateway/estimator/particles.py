@@ -20,6 +20,12 @@ def shrinkage(delta: float) -> float:
     return (3.0 * delta - 1.0) / (2.0 * delta)
 
 
+def jitter_var(delta: float) -> float:
+    """Liu-West jitter variance factor h^2 = 1 - a^2 (a: :func:`shrinkage`)."""
+    a = shrinkage(delta)
+    return 1.0 - a * a
+
+
 def _unit_points(rng: np.random.Generator, n: int, d: int) -> np.ndarray:
     """n scrambled Halton points in [0, 1)^d: evenly spread, random, from ``rng``.
 
@@ -113,7 +119,7 @@ def liu_west_move(rng: np.random.Generator, z: np.ndarray, w: np.ndarray,
     parameters, does not have. Returns new z (N, d).
     """
     a = shrinkage(delta)
-    h2 = 1.0 - a * a
+    h2 = jitter_var(delta)
     mean, cov = weighted_moments(z, w)
     cov = cov + np.diag(np.maximum(floor_log**2 / h2 - np.diag(cov), 0.0))
     ak = a ** max(int(steps), 1)

@@ -9,7 +9,7 @@ import numpy as np
 from gateway.errors import EstimatorError
 from gateway.estimator.faultbank import FaultBankConfig
 from gateway.estimator.monitor import MonitorConfig
-from gateway.estimator.particles import shrinkage
+from gateway.estimator.particles import jitter_var
 from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
     PARAM_NAMES,
@@ -60,11 +60,7 @@ def floor_for_delta(delta: float) -> float:
     """
     if not 0.0 < delta < 1.0:
         raise EstimatorError(f"expected 0 < delta < 1, got {delta}")
-    def h2(d: float) -> float:
-        a = shrinkage(d)
-        return 1.0 - a * a
-
-    return float(PAPER_FLOOR_REL * (h2(delta) / h2(PAPER_DELTA)) ** 0.5)
+    return float(PAPER_FLOOR_REL * (jitter_var(delta) / jitter_var(PAPER_DELTA)) ** 0.5)
 
 
 @dataclass(frozen=True)
