@@ -41,12 +41,13 @@ def _wait(cond, timeout_s: float) -> bool:
 class Running:
     """A Service in a thread on its own virtual channel, with a frame recorder."""
 
-    def __init__(self, tmp_path: Path, name: str, particles: int = 200) -> None:
+    def __init__(self, tmp_path: Path, name: str, particles: int = 200,
+                 overrides: dict[str, object] | None = None) -> None:
         self.channel = f"svc-{name}-{time.monotonic_ns()}"
         cfg = with_overrides(Config(), {
             "bus.interface": "virtual", "bus.channel": self.channel,
             "state.directory": str(tmp_path / "state"), "estimator.particles": particles,
-            "estimator.checkpoint_interval_s": 1.0})
+            "estimator.checkpoint_interval_s": 1.0, **(overrides or {})})
         self.service = Service(cfg)
         self.frames: list[can.Message] = []
         self._rx = open_bus(f"virtual:{self.channel}")
@@ -474,3 +475,24 @@ def test_a_quarantined_state_file_raises_its_health_flag_and_status(tmp_path):
         svc.close()
     assert flags.state_quarantined and flags.names() == ["state-quarantined"]
     assert list(state.glob("alert_policy.json.corrupt-*"))
+
+
+def test_a_restart_with_another_sensor_set_starts_a_fresh_estimator(tmp_path):
+    """A checkpoint of the 3-sensor estimator, then a restart configured for 5 sensors:
+    the service sets the checkpoint aside (kept, named in the health's problems) and
+    estimates with a fresh 5-sensor filter, whose frames come off the bus. Before, the
+    restored 3-sensor filter refused every 5-sensor sample: three worker deaths, and the
+    service stopped (systemd would start it on the same checkpoint again)."""
+    state = tmp_path / "state"
+    with Running(tmp_path, "three") as run:
+        run.play("nominal", 3.0).join()
+        assert _wait(lambda: (state / "checkpoint.bin").exists(), 60)
+    old = (state / "checkpoint.bin").read_bytes()
+    with Running(tmp_path, "five", overrides={"estimator.sensors": 5}) as run:
+        run.play("nominal", 3.0)
+        assert _wait(lambda: len(run.decoded("GW_EstCsy")) >= 5, 60)
+        svc = run.service
+        assert svc.pipeline is not None and svc.pipeline.worker.stats.restarts == 0
+        assert svc.health_flags().state_quarantined
+        assert any("sensors 3 -> 5" in p and "starts fresh" in p for p in svc.store.problems)
+    assert (state / "checkpoint.bin.corrupt-1").read_bytes() == old

@@ -49,7 +49,7 @@ from gateway.estimator.noisefloor import (
     model_band_variance,
     segment_starts,
 )
-from gateway.estimator.rbpf import RBPF, RBPFConfig
+from gateway.estimator.rbpf import RBPF, RBPFConfig, config_of_checkpoint
 from gateway.records import Estimate, NoiseCheck, Sample
 
 MAGIC = b"RAILGW-NOISE-START-1\n"
@@ -322,6 +322,19 @@ class NoiseCheckedStart:
             arrays["start"] = np.frombuffer(self._start, dtype=np.uint8)
         return ckpt.pack({"window": self.window, "interim": self.interim,
                           "trusted": self._trusted}, arrays, magic=MAGIC)
+
+    @staticmethod
+    def config_of(blob: bytes) -> tuple[RBPFConfig, bool]:
+        """The filter configuration a checkpoint :meth:`restore` accepts was made with,
+        and whether it is still in its noise test (True) or a plain filter's (False);
+        EstimatorError if ``blob`` is neither."""
+        if not blob.startswith(MAGIC):
+            return config_of_checkpoint(blob), False
+        _, arrays = ckpt.unpack(blob, magic=MAGIC)
+        if "inner" not in arrays:
+            raise EstimatorError("expected a noise-test checkpoint with its filter, got "
+                                 f"the arrays {sorted(arrays)}")
+        return config_of_checkpoint(arrays["inner"].tobytes()), True
 
     @classmethod
     def restore(cls, blob: bytes) -> NoiseCheckedStart | RBPF:

@@ -1021,6 +1021,16 @@ def _posterior(w: np.ndarray, z: np.ndarray, x: np.ndarray
     return mean, np.sqrt(np.maximum(sq, 0.0)), xs, xc, 1.0 / ww
 
 
+def config_of_checkpoint(data: bytes) -> RBPFConfig:
+    """The configuration an RBPF checkpoint (:meth:`RBPF.checkpoint`) was made with, as
+    :meth:`RBPF.restore` would rebuild it; EstimatorError if ``data`` is not one."""
+    meta, _ = ckpt.unpack(data)
+    try:
+        return _config_from_dict(meta["config"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise EstimatorError(f"expected an RBPF checkpoint, got {err!r}") from err
+
+
 def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
     d = dict(d)
     # a checkpoint from before the option existed moved whole states: it continues so

@@ -15,7 +15,8 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING
 
 import can
 
@@ -27,23 +28,33 @@ from gateway.frontend.chain import FrontEnd
 from gateway.records import Alert, Estimate, Estimator, NoiseCheck, Sample
 from gateway.runtime.worker import BLOCK_SAMPLES, WorkerLink, WorkerSettings
 
+if TYPE_CHECKING:
+    from gateway.estimator.rbpf_config import RBPFConfig
+
 log = logging.getLogger(__name__)
+
+
+def estimator_config(cfg: EstimatorConfig, fs_hz: float) -> RBPFConfig:
+    """The filter's settings this configuration gives (the one mapping from the service's
+    ``[estimator]`` table to the RBPF's: the builder and the checkpoint test use it)."""
+    from gateway.estimator.rbpf_config import RBPFConfig, floor_for_delta, kernel_delta_for
+
+    delta = kernel_delta_for(cfg.kernel_delta, cfg.particles)
+    return RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
+                      seed=cfg.seed, ar_paper=cfg.track_roughness,
+                      estimate_ar=cfg.estimate_track_roughness,
+                      walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode,
+                      start_ramp_s=cfg.start_ramp_s, start_ramp_m=cfg.start_ramp_m,
+                      delta=delta, floor_rel=floor_for_delta(delta))
 
 
 def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
     """A fresh RBPF from the configuration (module level, so it pickles to the worker);
     with ``sensor_noise = "measured"`` it starts with the noise test."""
     from gateway.estimator.noisestart import NoiseCheckedStart
-    from gateway.estimator.rbpf import RBPF, RBPFConfig
-    from gateway.estimator.rbpf_config import floor_for_delta, kernel_delta_for
+    from gateway.estimator.rbpf import RBPF
 
-    delta = kernel_delta_for(cfg.kernel_delta, cfg.particles)
-    rbpf = RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
-                      seed=cfg.seed, ar_paper=cfg.track_roughness,
-                      estimate_ar=cfg.estimate_track_roughness,
-                      walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode,
-                      start_ramp_s=cfg.start_ramp_s, start_ramp_m=cfg.start_ramp_m,
-                      delta=delta, floor_rel=floor_for_delta(delta))
+    rbpf = estimator_config(cfg, fs_hz)
     return NoiseCheckedStart(rbpf) if cfg.sensor_noise == "measured" else RBPF(rbpf)
 
 
@@ -52,6 +63,41 @@ def restore_estimator(blob: bytes) -> Estimator:
     from gateway.estimator.noisestart import NoiseCheckedStart
 
     return NoiseCheckedStart.restore(blob)
+
+
+def checkpoint_mismatch(cfg: EstimatorConfig, fs_hz: float, blob: bytes) -> str | None:
+    """Why the checkpoint ``blob`` is not of the estimator this configuration builds, in
+    one line (each setting that differs: the checkpoint's value, then the
+    configuration's), or None where it is, so that resuming from it is right.
+
+    A checkpoint carries the settings its filter was built with, and a restore keeps
+    them: without this test a restart after a change of ``[estimator]`` (or of a default,
+    by an upgrade) would go on with the old filter for good, or, with another sensor set,
+    fail on every sample (a worker that dies at once, three times: the service stops,
+    and systemd starts it on the same checkpoint again). Every setting counts but the
+    sensor-noise variances a filter measured itself (``sensor_noise = "measured"``);
+    under ``"model"`` a filter on measured variances, or one still in its test, is
+    another filter (one whose test found the model's variances is the model's filter).
+    A checkpoint that cannot be read says so.
+
+    The parent process imports the estimator's configuration module for this (about
+    50 MB, only when a checkpoint exists)."""
+    from gateway.errors import EstimatorError
+    from gateway.estimator.noisestart import NoiseCheckedStart
+
+    try:
+        then, testing = NoiseCheckedStart.config_of(blob)
+    except EstimatorError as err:
+        return f"unreadable: {err}"
+    now = estimator_config(cfg, fs_hz)
+    measured = cfg.sensor_noise == "measured"
+    differ = [f"{f.name} {getattr(then, f.name)!r} -> {getattr(now, f.name)!r}"
+              for f in fields(now)
+              if not (f.name == "noise_var" and measured)
+              and getattr(then, f.name) != getattr(now, f.name)]
+    if not measured and testing:
+        differ.append("sensor_noise 'measured' (in its test) -> 'model'")
+    return None if not differ else "made with other settings: " + "; ".join(differ)
 
 
 def warm_estimator(numba_threads: int) -> None:

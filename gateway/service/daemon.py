@@ -41,13 +41,13 @@ from gateway.config import Config, load_config, with_overrides
 from gateway.errors import ConfigError
 from gateway.model.vehicle import PARAM_NAMES
 from gateway.records import Alert, Estimate, Sink
-from gateway.runtime.pipeline import Pipeline
+from gateway.runtime.pipeline import Pipeline, checkpoint_mismatch
 from gateway.service.losses import LossCounts, LossLog
 from gateway.service.sdnotify import Notifier
 from gateway.service.view import ServiceViewImpl
 from gateway.sinks.outputs import CanSink, Health, HealthFlags, LogSink
 from gateway.sinks.state import restore_policy
-from gateway.sinks.store import StateStore
+from gateway.sinks.store import CHECKPOINT, StateStore
 
 log = logging.getLogger(__name__)
 
@@ -291,7 +291,13 @@ class Service:
         ck = self.store.load_checkpoint()
         blob = ck.blob if ck is not None else None
         if blob is not None:
-            log.info("resuming the estimator from the persisted checkpoint")
+            why = checkpoint_mismatch(self.cfg.estimator, self.cfg.resampler.fs_hz, blob)
+            if why is None:
+                log.info("resuming the estimator from the persisted checkpoint")
+            else:       # set aside (kept, a health flag); the estimator starts fresh
+                self.store.quarantine(CHECKPOINT, f"not this configuration's estimator, "
+                                                  f"which starts fresh: {why}")
+                blob = None
         self.install_log_tail()
         self.source.start()
         self.pipeline = Pipeline(self.cfg, self.codec, policy=self.policy, checkpoint=blob,
