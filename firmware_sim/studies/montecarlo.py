@@ -15,9 +15,12 @@ the reference without Monte Carlo error).
 and delta: per parameter the mean estimate and the spread between filter seeds, both
 relative to the mean stated sigma (``mc_over_sigma``), the stated sigma over the grid
 posterior's sd (``sigma_over_grid``), and the mean estimate's offset from the grid
-posterior's mean in its sd (``offset_over_grid``). ``summary < rows.jsonl`` averages
-them per (sensors, speed, delta). Filter seed ``1000 * seed + k`` (k = 1 ..). A
-measuring tool, not used by the service.
+posterior's mean in its sd (``offset_over_grid``), and the stated sigma over the total
+error a run's estimate carries about the truth, the posterior's sd and the Monte Carlo
+error together (``sigma_over_total``, :func:`sigma_over_total`: 1 or more where the
+stated sigma covers both). ``summary < rows.jsonl`` averages them per (sensors, speed,
+delta), with the smallest ``sigma_over_total``. Filter seed ``1000 * seed + k``
+(k = 1 ..). A measuring tool, not used by the service.
 """
 
 from __future__ import annotations
@@ -39,6 +42,17 @@ GRID_POINTS = 16
 """Grid values per parameter (16^3 filters: a few seconds per 5 s record)."""
 
 
+def sigma_over_total(row: dict[str, Any]) -> np.ndarray:
+    """The stated sigma over ``sqrt(grid_sd**2 + mc_sd**2)``, per parameter, shape (3,).
+
+    A run's estimate differs from the truth by the posterior's spread (the grid's sd, over
+    realisations of the data) plus its own Monte Carlo error (the spread between filter
+    seeds, independent of the data's noise), so its error sd is about the root sum of
+    squares. Computed from a row's ``sigma``, ``grid_sd`` and ``mc_sd``, so rows written
+    before this column existed give it too."""
+    return np.array(row["sigma"]) / np.hypot(np.array(row["grid_sd"]), np.array(row["mc_sd"]))
+
+
 def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float,
             filter_seeds: int, particles: int) -> dict[str, Any]:
     """One record: the service's filter with ``filter_seeds`` seeds and the exact grid
@@ -57,20 +71,25 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
     grid = grid_posterior(Y, sensors, theta, half_log_for(sensors, at_s, speed_mps),
                           GRID_POINTS, speed_mps)
     mc = means.std(0, ddof=1)
-    return {"study": "montecarlo", "seed": seed, "sensors": sensors, "t_s": at_s,
-            "speed_mps": speed_mps, "kernel_delta": ran, "particles": particles,
-            "filter_seeds": filter_seeds, "truth": theta.tolist(),
-            "mean": means.mean(0).tolist(), "sigma": sigma.tolist(), "mc_sd": mc.tolist(),
-            "grid_mean": grid.mean.tolist(), "grid_sd": grid.std.tolist(),
-            "grid_face_mass": [float(f"{f:.3g}") for f in grid.face_mass],
-            "mc_over_sigma": np.round(mc / sigma, 3).tolist(),
-            "sigma_over_grid": np.round(sigma / grid.std, 3).tolist(),
-            "offset_over_grid": np.round((means.mean(0) - grid.mean) / grid.std, 3).tolist()}
+    offset = (means.mean(0) - grid.mean) / grid.std
+    row: dict[str, Any] = {
+        "study": "montecarlo", "seed": seed, "sensors": sensors, "t_s": at_s,
+        "speed_mps": speed_mps, "kernel_delta": ran, "particles": particles,
+        "filter_seeds": filter_seeds, "truth": theta.tolist(),
+        "mean": means.mean(0).tolist(), "sigma": sigma.tolist(), "mc_sd": mc.tolist(),
+        "grid_mean": grid.mean.tolist(), "grid_sd": grid.std.tolist(),
+        "grid_face_mass": [float(f"{f:.3g}") for f in grid.face_mass],
+        "mc_over_sigma": np.round(mc / sigma, 3).tolist(),
+        "sigma_over_grid": np.round(sigma / grid.std, 3).tolist(),
+        "offset_over_grid": np.round(offset, 3).tolist()}
+    row["sigma_over_total"] = np.round(sigma_over_total(row), 3).tolist()
+    return row
 
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (sensors, speed, delta): records, and per parameter the mean of
-    ``mc_over_sigma``, ``sigma_over_grid`` and ``offset_over_grid`` over the records."""
+    ``mc_over_sigma``, ``sigma_over_grid``, ``offset_over_grid`` and ``sigma_over_total``
+    over the records, and the smallest ``sigma_over_total`` (``..._min``)."""
     def key_of(r: dict[str, Any]) -> tuple[int, float, float]:
         return r["sensors"], float(r["speed_mps"]), float(r["kernel_delta"])
 
@@ -83,6 +102,10 @@ def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             values = np.array([r[col] for r in case])
             for i, name in enumerate(PARAM_NAMES):
                 row[f"{name}_{col}"] = round(float(values[:, i].mean()), 3)
+        total = np.array([sigma_over_total(r) for r in case])     # (records, 3)
+        for i, name in enumerate(PARAM_NAMES):
+            row[f"{name}_sigma_over_total"] = round(float(total[:, i].mean()), 3)
+            row[f"{name}_sigma_over_total_min"] = round(float(total[:, i].min()), 3)
         out.append(row)
     return out
 
