@@ -13,9 +13,10 @@ read back as NaN (:func:`number`). Enums are written by name (``"ALARM"``, ``"RA
 - alert: ``{"seq", "t_s", "parameter", "severity", "state", "code", "value_rel",
   "message"}``;
 - estimate: ``{"t_s", "ess", "updated", "provisional", "v_sy_mps", "v_say_mps", "params": {name:
-  {"mean", "std"}}, "located"}`` (:func:`params_json` is the ``params`` part alone;
-  ``located`` null, or the fault bank's change ``{"t_s", "parameter", "rel", "rel_lo",
-  "rel_hi", "like_lo", "like_hi"}``, :func:`located_json`).
+  {"mean", "std"}}, "located", "left_out"}`` (:func:`params_json` is the ``params`` part
+  alone; ``located`` null, or the fault bank's change ``{"t_s", "parameter", "rel",
+  "rel_lo", "rel_hi", "like_lo", "like_hi"}``, :func:`located_json`; ``left_out`` the
+  names of the sensors the estimate did without, ``[]`` when it used them all).
 """
 
 from __future__ import annotations
@@ -75,7 +76,8 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
             "provisional": bool(est.provisional), "v_sy_mps": finite(est.v_sy_mps),
             "v_say_mps": finite(est.v_say_mps),
             "params": params_json(est),
-            "located": None if est.located is None else located_json(est.located)}
+            "located": None if est.located is None else located_json(est.located),
+            "left_out": list(est.left_out)}
 
 
 def located_json(loc: Located) -> dict[str, Any]:

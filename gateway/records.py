@@ -72,7 +72,11 @@ class Estimate:
     sensor-noise test, :mod:`gateway.estimator.noisestart`); the alert policy does not
     judge it, and the estimate frame says Converging at best. ``located``: the fault
     bank's latest change while it is recent (up to 2 s of data after its decision;
-    the same record on each of those estimates), or None.
+    the same record on each of those estimates), or None. ``left_out``: the sensors the
+    filters left out for this estimate, having had no values (a dead node,
+    :mod:`gateway.estimator.sensormask`), in sensor-set order; empty when every sensor
+    was used or the producer does not say. What only those sensors show (with the body
+    node out, most of Csy) is then not in ``mean`` and ``std``.
     """
 
     t_s: float
@@ -85,6 +89,7 @@ class Estimate:
     names: tuple[str, ...] = field(default=PARAM_NAMES)
     provisional: bool = False
     located: Located | None = None
+    left_out: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         """``{name: {"mean": m, "std": s}}`` for each parameter."""

@@ -117,6 +117,22 @@ def test_fast_mode_and_the_fault_bank_run_on_the_sensors_left() -> None:
     assert steady[t > 9.0 + BACK_AFTER_S + 2.1].all()                  # steady on five
 
 
+def test_the_estimates_name_the_sensors_left_out() -> None:
+    """Each estimate names the sensors its filters did without (``Estimate.left_out``):
+    none while the wheelset node sends, both of its sensors from ``DEAD_AFTER_S`` after
+    it falls silent until ``BACK_AFTER_S`` after it is back."""
+    Y = _outputs(6000, seed=33)
+    Y[1500:3500, WSN] = np.nan
+    filt = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=32, sensors=5, seed=3, mode="fast"))
+    said = {round(e.t_s, 3): e.left_out for e in filt.run(_samples(Y), output_every=100)}
+    wsn = ("acc_w1", "acc_w2")
+    for t_s, left in said.items():
+        k = round(t_s * FS_HZ)            # the sample: its own value counts in the runs
+        dead = 1500 + DEAD_N - 1 <= k < 3500 + BACK_N - 1
+        assert left == (wsn if dead else ()), (t_s, left)
+    assert sum(1 for left in said.values() if left) >= 20
+
+
 @pytest.mark.parametrize("mode", ["fast", "exact"])
 def test_run_step_and_checkpoints_agree_through_a_dead_sensor(mode: str) -> None:
     """The block path equals the per-sample path through a node that dies and comes back

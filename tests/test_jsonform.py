@@ -19,6 +19,7 @@ import pytest
 from gateway import jsonform
 from gateway.alerts import judge
 from gateway.alerts.policy import AlertPolicy, ParamPolicy, PolicyConfig
+from gateway.console import render
 from gateway.console.view import estimates_view, history_row
 from gateway.errors import StateError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL
@@ -103,7 +104,9 @@ def test_estimate_form_is_strict_json():
                         "csy_ns_per_m": {"mean": 40e3, "std": 1e3},
                         "csay_ns_per_m": {"mean": None, "std": 1e5},
                         "conicity": {"mean": 0.15, "std": None}},
-                    "located": None}
+                    "located": None, "left_out": []}
+    dead = strict(jsonform.estimate_json(dataclasses.replace(NAN_EST, left_out=("acc_bd",))))
+    assert dead["left_out"] == ["acc_bd"]
     loc = Located(1.4, "csy_ns_per_m", 0.5, 0.33, math.nan, 0.0, math.inf)
     form = strict(jsonform.estimate_json(dataclasses.replace(NAN_EST, located=loc)))
     assert form["located"] == {"t_s": 1.4, "parameter": "csy_ns_per_m", "rel": 0.5,
@@ -142,6 +145,17 @@ def test_every_estimate_writer_uses_the_one_form():
     replay = strict(replay_estimate(NAN_EST))
     assert replay["csay_ns_per_m"] == {"mean": None, "std": 1e5}
     assert replay["conicity"]["std"] is None and replay["ess"] is None
+    assert "left_out" not in replay and view["left_out"] == form["left_out"] == []
+    dead = dataclasses.replace(NAN_EST, left_out=("acc_w1", "acc_w2"))
+    assert strict(replay_estimate(dead))["left_out"] == ["acc_w1", "acc_w2"]
+    view = strict(estimates_view(dead, thresholds={}))
+    assert view["left_out"] == ["acc_w1", "acc_w2"]
+    text = render.estimates(view).splitlines()
+    assert text[1] == ("without sensors acc_w1, acc_w2 (no data: left out); what only they "
+                       "show is not in these values")
+    assert not any("without sensors" in line
+                   for line in render.estimates(estimates_view(NAN_EST, thresholds={}))
+                   .splitlines())
 
 
 def test_state_directory_of_the_previous_version_loads(tmp_path: Path):

@@ -150,6 +150,9 @@ def estimates(d: Mapping[str, Any]) -> str:
     head = (f"estimates at data time {num(d.get('t_s'), '.1f')} s, ESS "
             f"{num(d.get('ess'), '.0f')} of {_word(d.get('particles'))} particles"
             + ("" if d.get("updated") is not False else " (predict only: gated)"))
+    if d.get("left_out"):
+        head += ("\nwithout sensors " + ", ".join(map(str, d["left_out"])) + " (no data: "
+                 "left out); what only they show is not in these values")
     rows = [head, f"{'parameter':<21}{'value':>8} {'+-sigma':>7} {'unit':<6}"
                   f"{'% nom':>6}  {'limits A/W/Al':<16}status"]
     for name, p in params.items():

@@ -969,7 +969,9 @@ class RBPF:
         return Estimate(t_s=float(t_s), mean=tuple(float(v) for v in mean),
                         std=tuple(float(v) for v in std),
                         ess=ess, v_sy_mps=v_sy, v_say_mps=v_say,
-                        updated=updated, names=self.config.names, located=self._located(t_s))
+                        updated=updated, names=self.config.names, located=self._located(t_s),
+                        left_out=tuple(s for s, out in zip(self.sensors, self._left_out,
+                                                           strict=True) if out))
 
     def _located(self, t_s: float) -> Located | None:
         """The bank's latest detection, on every estimate up to :data:`LOCATED_FOR_S`

@@ -57,6 +57,8 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
         out[key] = _sig(j[key], 6)
     if j["located"] is not None:            # only within 2 s after a bank detection
         out["located"] = j["located"]
+    if j["left_out"]:                       # only while a sensor is left out (a dead node)
+        out["left_out"] = j["left_out"]
     return out
 
 
