@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from gateway.config import EstimatorConfig
+from gateway.estimator import checkpoint as ckpt
 from gateway.records import Sample
 from gateway.runtime.pipeline import build_estimator, checkpoint_mismatch, restore_estimator
 
@@ -54,6 +55,17 @@ def test_another_setting_names_what_differs(base, change, said):
     why = checkpoint_mismatch(replace(base, **change), FS_HZ, blob)
     assert why is not None and why.startswith("made with other settings: ") and said in why
     assert "\n" not in why
+
+
+def test_a_nested_setting_is_named_field_by_field(base):
+    """A default of the fault bank changed (as by an upgrade): the line names that field,
+    not two whole configurations."""
+    blob = _run(replace(base, sensor_noise="model"), 0.1)
+    meta, arrays = ckpt.unpack(blob)
+    meta["config"]["faults"]["replay_s"] = 0.5
+    why = checkpoint_mismatch(replace(base, sensor_noise="model"), FS_HZ,
+                              ckpt.pack(meta, arrays))
+    assert why == "made with other settings: faults.replay_s 0.5 -> 2.0", why
     assert checkpoint_mismatch(base, 2 * FS_HZ, blob) is not None      # another grid rate
 
 
@@ -71,3 +83,12 @@ def test_under_the_model_noise_a_filter_in_its_test_is_another_filter(base):
 def test_an_unreadable_checkpoint_says_so(base, blob):
     why = checkpoint_mismatch(base, FS_HZ, blob)
     assert why is not None and why.startswith("unreadable: expected ")
+
+
+@pytest.mark.parametrize("config", [{"faults": [1, 2]}, {"nominal": 3}, {"sensors": None}],
+                         ids=["faults a list", "nominal a number", "sensors null"])
+def test_a_readable_checkpoint_with_a_malformed_configuration_says_so(base, config):
+    meta, arrays = ckpt.unpack(_run(replace(base, sensor_noise="model"), 0.1))
+    meta["config"].update(config)
+    why = checkpoint_mismatch(base, FS_HZ, ckpt.pack(meta, arrays))
+    assert why is not None and why.startswith("unreadable: expected "), why

@@ -50,7 +50,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from gateway.errors import EstimatorError
+from gateway.errors import EstimatorError, ModelError
 from gateway.estimator import checkpoint as ckpt
 from gateway.estimator import particles as pt
 from gateway.estimator.batch_expm import DiscreteBatch
@@ -1029,7 +1029,7 @@ def config_of_checkpoint(data: bytes) -> RBPFConfig:
     meta, _ = ckpt.unpack(data)
     try:
         return _config_from_dict(meta["config"])
-    except (KeyError, TypeError, ValueError) as err:
+    except (KeyError, TypeError, ValueError, AttributeError, ModelError) as err:
         raise EstimatorError(f"expected an RBPF checkpoint, got {err!r}") from err
 
 

@@ -15,8 +15,8 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field, fields, is_dataclass
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -89,15 +89,27 @@ def checkpoint_mismatch(cfg: EstimatorConfig, fs_hz: float, blob: bytes) -> str 
         then, testing = NoiseCheckedStart.config_of(blob)
     except EstimatorError as err:
         return f"unreadable: {err}"
-    now = estimator_config(cfg, fs_hz)
     measured = cfg.sensor_noise == "measured"
-    differ = [f"{f.name} {getattr(then, f.name)!r} -> {getattr(now, f.name)!r}"
-              for f in fields(now)
-              if not (f.name == "noise_var" and measured)
-              and getattr(then, f.name) != getattr(now, f.name)]
+    differ = _differences(then, estimator_config(cfg, fs_hz),
+                          skip={"noise_var"} if measured else set())
     if not measured and testing:
         differ.append("sensor_noise 'measured' (in its test) -> 'model'")
     return None if not differ else "made with other settings: " + "; ".join(differ)
+
+
+def _differences(then: Any, now: Any, skip: set[str], prefix: str = "") -> list[str]:
+    """``"name then -> now"`` for each field of two dataclasses of one type that differs,
+    nested ones field by field (``faults.replay_s 0.0 -> 2.0``), ``skip`` left out."""
+    out = []
+    for f in fields(now):
+        a, b = getattr(then, f.name), getattr(now, f.name)
+        if f.name in skip or a == b:
+            continue
+        if is_dataclass(a) and type(a) is type(b):
+            out += _differences(a, b, set(), f"{prefix}{f.name}.")
+        else:
+            out.append(f"{prefix}{f.name} {a!r} -> {b!r}")
+    return out
 
 
 def warm_estimator(numba_threads: int) -> None:
