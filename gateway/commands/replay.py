@@ -57,9 +57,9 @@ def run(args: argparse.Namespace) -> int:
     if not result.estimates:
         raise InputError(f"expected sensor traffic the gateway could estimate from in "
                          f"{args.log}, got {result.frames} frames and no estimate")
-    from gateway.estimator.rbpf_config import kernel_delta_for
     from gateway.offline import report
     from gateway.offline.grid import history_rows
+    from gateway.runtime.pipeline import estimator_config
 
     history = history_rows(result.estimates)
     settings = {"particles": cfg.estimator.particles, "mode": cfg.estimator.mode,
@@ -69,8 +69,8 @@ def run(args: argparse.Namespace) -> int:
                 "drift_per_sqrt_s": cfg.estimator.drift_per_sqrt_s,
                 "start_ramp_s": cfg.estimator.start_ramp_s,
                 "start_ramp_m": cfg.estimator.start_ramp_m,
-                "kernel_delta": kernel_delta_for(cfg.estimator.kernel_delta,
-                                                 cfg.estimator.particles),
+                # the discount that ran (auto resolved), from the one mapping
+                "kernel_delta": estimator_config(cfg.estimator, cfg.resampler.fs_hz).delta,
                 "sensor_noise": cfg.estimator.sensor_noise,
                 "fs_hz": cfg.resampler.fs_hz, "source": str(args.log)}
     diagnostics = {"frames": result.frames, "rejected": result.rejected,
