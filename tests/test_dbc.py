@@ -316,6 +316,12 @@ def test_health_flags_frame_carries_every_flag_and_counter(codec: Codec) -> None
         assert (v["GW_HealthFlags_LateFrames"], v["GW_HealthFlags_GapSamples"],
                 v["GW_HealthFlags_WriteFailures"], v["GW_HealthFlags_Resyncs"]) == (k, 7, 3, k)
         assert frames["GW_Health"].values["GW_Health_GwState"] == 1
+    for node in ("WSN", "BGN", "BDN"):
+        flags = HealthFlags(left_out_nodes=(node,))
+        sink.emit_health(Health("Running", 0, 0, 1, 0, 0, 1.0, flags))
+        v = codec.decode_message(sent[-1]).values
+        raised = [n for n in ("Wsn", "Bgn", "Bdn") if v[f"GW_HealthFlags_{n}LeftOut"] == 1]
+        assert raised == [node.capitalize()] and flags.names() == [f"left-out-{node}"]
 
 
 def test_a_provisional_estimate_goes_on_the_bus_as_converging_at_best(codec: Codec) -> None:

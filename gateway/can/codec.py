@@ -48,6 +48,8 @@ SENSOR_SIGNALS: dict[str, tuple[str, str]] = {
     "speed": ("VEH_Speed", "VEH_Speed"),
 }
 """Sensor name (as in :data:`gateway.model.vehicle.SENSORS_5`, plus speed) -> (message, signal)."""
+SENSOR_NODE: dict[str, str] = {name: msg.split("_")[0] for name, (msg, _) in SENSOR_SIGNALS.items()}
+"""Sensor name -> the node that sends it (one of :data:`SENSOR_NODES`)."""
 
 _NAN = math.nan
 SignalValue = float | str | None

@@ -35,7 +35,7 @@ import can
 
 from gateway.can.bus import BusSpec, open_bus, set_receive_buffer
 from gateway.can.busload import frame_bits_worst_case
-from gateway.can.codec import Codec, default_codec
+from gateway.can.codec import SENSOR_NODE, Codec, default_codec
 from gateway.can.source import BusSource
 from gateway.config import Config, load_config, with_overrides
 from gateway.errors import ConfigError
@@ -45,7 +45,7 @@ from gateway.runtime.pipeline import Pipeline, checkpoint_mismatch
 from gateway.service.losses import LossCounts, LossLog
 from gateway.service.sdnotify import Notifier
 from gateway.service.view import ServiceViewImpl
-from gateway.sinks.outputs import CanSink, Health, HealthFlags, LogSink
+from gateway.sinks.outputs import LEFT_OUT_NODES, CanSink, Health, HealthFlags, LogSink
 from gateway.sinks.state import restore_policy
 from gateway.sinks.store import CHECKPOINT, StateStore
 
@@ -265,12 +265,15 @@ class Service:
             resyncs = fe.resyncs + fe.clock_steps
             gaps = fe.gap_points
         priority_error = p.stats().priority_error if p is not None else None
+        est = p.last_estimate if p is not None else None
+        left_out = {SENSOR_NODE[s] for s in est.left_out} if est is not None else set()
         return HealthFlags(
             state_quarantined=bool(self.store.quarantined),
             persistence_failing=self.store.write_failures > 0,
             priority_not_applied=bool(priority_error),
             front_end_resyncing=resyncs > self._resyncs_reported,
             two_senders=two_senders,
+            left_out_nodes=tuple(n for n in LEFT_OUT_NODES if n in left_out),
             late_frames=late, gap_samples=gaps, write_failures=self.store.write_failures,
             resyncs=resyncs)
 

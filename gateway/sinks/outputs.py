@@ -19,10 +19,10 @@ from typing import assert_never
 
 import can
 
-from gateway.can.codec import Codec
+from gateway.can.codec import SENSOR_NODE, Codec
 from gateway.can.e2e import next_counter
 from gateway.errors import InputError
-from gateway.model.vehicle import PARAM_NAMES
+from gateway.model.vehicle import PARAM_NAMES, SENSORS_5
 from gateway.records import Alert, AlertState, Estimate, Severity
 
 log = logging.getLogger(__name__)
@@ -32,6 +32,9 @@ EST_MESSAGES = {"csy_ns_per_m": "GW_EstCsy", "csay_ns_per_m": "GW_EstCsay",
 PARAM_CODE = {name: i for i, name in enumerate(PARAM_NAMES)}
 CONVERGED_REL_STD = 0.05
 """sigma/theta below which an estimate frame says Valid rather than Converging."""
+LEFT_OUT_NODES = tuple(dict.fromkeys(SENSOR_NODE[s] for s in SENSORS_5))
+"""The nodes that send the estimator's sensors (WSN, BGN, BDN), each with a
+GW_HealthFlags_<Node>LeftOut bit."""
 RATE_SLACK = 1e-3
 """Fraction of the estimate period by which an estimate may come early and still be
 sent: data times are float grid points, so a due time may land a hair past the
@@ -53,6 +56,9 @@ class HealthFlags:
     the previous report."""
     two_senders: bool = False
     """Two interleaved senders seen on one sensor id."""
+    left_out_nodes: tuple[str, ...] = ()
+    """Nodes (of WSN, BGN, BDN) a sensor of which the latest estimate left out
+    (``Estimate.left_out``: no values from it)."""
     late_frames: int = 0
     gap_samples: int = 0
     write_failures: int = 0
@@ -67,7 +73,8 @@ class HealthFlags:
                   ("priority-not-applied", self.priority_not_applied),
                   ("front-end-resyncing", self.front_end_resyncing),
                   ("two-senders", self.two_senders))
-        return [name for name, on in raised if on]
+        return ([name for name, on in raised if on]
+                + [f"left-out-{node}" for node in self.left_out_nodes])
 
 
 @dataclass(frozen=True)
@@ -205,6 +212,8 @@ class CanSink:
             "GW_HealthFlags_PriorityNotApplied": int(f.priority_not_applied),
             "GW_HealthFlags_FrontEndResync": int(f.front_end_resyncing),
             "GW_HealthFlags_TwoSenders": int(f.two_senders),
+            **{f"GW_HealthFlags_{node.capitalize()}LeftOut": int(node in f.left_out_nodes)
+               for node in LEFT_OUT_NODES},
             "GW_HealthFlags_LateFrames": f.late_frames, "GW_HealthFlags_GapSamples": f.gap_samples,
             "GW_HealthFlags_WriteFailures": f.write_failures, "GW_HealthFlags_Resyncs": f.resyncs})
 
