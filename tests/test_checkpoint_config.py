@@ -74,9 +74,23 @@ def test_under_the_model_noise_a_filter_in_its_test_is_another_filter(base):
     assert "sensor_noise 'measured' (in its test) -> 'model'" in (
         checkpoint_mismatch(model, FS_HZ, _run(base, 0.2)) or "")
     assert checkpoint_mismatch(model, FS_HZ, _run(model, 0.2)) is None
-    # a model filter resumes under "measured" untested: it cannot be told from a filter
-    # whose test found the model's variances (that filter keeps them unset too)
-    assert checkpoint_mismatch(base, FS_HZ, _run(model, 0.2)) is None
+
+
+def test_under_the_measured_noise_an_untested_filter_is_another_filter(base):
+    """A filter made under "model" never tested its variances: after a switch to
+    "measured" the service starts fresh (and tests them) instead of going on untested."""
+    model = replace(base, sensor_noise="model")
+    untested = _run(model, 0.2)
+    why = checkpoint_mismatch(base, FS_HZ, untested)
+    assert why == "made with other settings: sensor_noise 'model' -> 'measured' " \
+                  "(its variances never tested)", why
+    tested = _run(base, 6.0)
+    assert checkpoint_mismatch(base, FS_HZ, tested) is None
+    # a checkpoint from before the filters said whether they were tested resumes, as
+    # it did before
+    meta, arrays = ckpt.unpack(untested)
+    del meta["config"]["noise_tested"]
+    assert checkpoint_mismatch(base, FS_HZ, ckpt.pack(meta, arrays)) is None
 
 
 @pytest.mark.parametrize("blob", [b"", b"RBPF-CKPT-1\n\x05\x00", b"not a checkpoint"])

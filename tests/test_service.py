@@ -477,22 +477,31 @@ def test_a_quarantined_state_file_raises_its_health_flag_and_status(tmp_path):
     assert list(state.glob("alert_policy.json.corrupt-*"))
 
 
-def test_a_restart_with_another_sensor_set_starts_a_fresh_estimator(tmp_path):
+@pytest.mark.parametrize(("before", "after", "said"), [
+    ({}, {"estimator.sensors": 5}, "sensors 3 -> 5"),
+    ({"estimator.sensor_noise": "model"}, {},
+     "sensor_noise 'model' -> 'measured' (its variances never tested)"),
+], ids=["another sensor set", "model noise, then measured"])
+def test_a_restart_with_other_estimator_settings_starts_a_fresh_estimator(tmp_path, before, after,
+                                                                      said):
     """A checkpoint of the 3-sensor estimator, then a restart configured for 5 sensors:
     the service sets the checkpoint aside (kept, named in the health's problems) and
     estimates with a fresh 5-sensor filter, whose frames come off the bus. Before, the
     restored 3-sensor filter refused every 5-sensor sample: three worker deaths, and the
-    service stopped (systemd would start it on the same checkpoint again)."""
+    service stopped (systemd would start it on the same checkpoint again). The same for
+    a switch from the model's sensor noise to measured noise: before, the restored filter
+    went on with variances it had never tested."""
     state = tmp_path / "state"
-    with Running(tmp_path, "three") as run:
+    with Running(tmp_path, "first", overrides=before) as run:
         run.play("nominal", 3.0).join()
         assert _wait(lambda: (state / "checkpoint.bin").exists(), 60)
     old = (state / "checkpoint.bin").read_bytes()
-    with Running(tmp_path, "five", overrides={"estimator.sensors": 5}) as run:
+    with Running(tmp_path, "second", overrides=after) as run:
         run.play("nominal", 3.0)
         assert _wait(lambda: len(run.decoded("GW_EstCsy")) >= 5, 60)
         svc = run.service
         assert svc.pipeline is not None and svc.pipeline.worker.stats.restarts == 0
         assert svc.health_flags().state_quarantined
-        assert any("sensors 3 -> 5" in p and "starts fresh" in p for p in svc.store.problems)
+        assert any(said in p and "starts fresh" in p for p in svc.store.problems), \
+            svc.store.problems
     assert (state / "checkpoint.bin.corrupt-1").read_bytes() == old

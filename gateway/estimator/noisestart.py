@@ -231,6 +231,8 @@ class NoiseCheckedStart:
                 elif control <= _RESET:
                     fresh.reset_parameter(_RESET - control)
             self.inner = fresh
+        # the filter from here on is a tested one (its checkpoints say so)
+        self.inner.config = replace(self.inner.config, noise_tested=True)
         self._start, self._kept, self._events = None, [], []
         return est
 

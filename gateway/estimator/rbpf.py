@@ -1037,6 +1037,9 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
     d = dict(d)
     # a checkpoint from before the option existed moved whole states: it continues so
     d.setdefault("moves_drop_null", False)
+    # ... and one from before the noise test said so counts as tested: an upgrade
+    # resumes it under "measured", as before
+    d.setdefault("noise_tested", True)
     d["nominal"] = Theta(**d["nominal"])
     d["params"] = VehicleParams(**d["params"])
     d["monitor"] = None if d["monitor"] is None else MonitorConfig(**d["monitor"])

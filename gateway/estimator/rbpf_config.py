@@ -111,6 +111,10 @@ class RBPFConfig:
     ``noise_var``: the sensors' white-noise variances (SI units^2, in sensor-set order);
     None: the paper's Qv (:func:`gateway.model.vehicle.measurement_noise`). The service
     measures them at the start of a run (:mod:`gateway.estimator.noisestart`);
+    ``noise_tested``: those variances were tested against the data (set by the test,
+    whatever it found; the filter never reads it): a restart under ``sensor_noise =
+    "measured"`` resumes only a tested filter
+    (:func:`gateway.runtime.pipeline.checkpoint_mismatch`);
     ``faults``: the fault-hypothesis bank that detects abrupt changes
     (:mod:`gateway.estimator.faultbank`; None: none);
     ``threads``: numba threads wanted for the kernels (None: all); the process sets them
@@ -147,6 +151,7 @@ class RBPFConfig:
     start_ramp_m: float = 0.0
     resample: bool = True
     noise_var: tuple[float, ...] | None = None
+    noise_tested: bool = False
     monitor: MonitorConfig | None = field(default_factory=MonitorConfig)
     faults: FaultBankConfig | None = field(default_factory=FaultBankConfig)
     nominal: Theta = THETA_NOMINAL

@@ -77,7 +77,9 @@ def checkpoint_mismatch(cfg: EstimatorConfig, fs_hz: float, blob: bytes) -> str 
     and systemd starts it on the same checkpoint again). Every setting counts but the
     sensor-noise variances a filter measured itself (``sensor_noise = "measured"``);
     under ``"model"`` a filter on measured variances, or one still in its test, is
-    another filter (one whose test found the model's variances is the model's filter).
+    another filter (one whose test found the model's variances is the model's filter),
+    and under ``"measured"`` so is one whose variances were never tested (a filter
+    made under ``"model"``, ``RBPFConfig.noise_tested``).
     A checkpoint that cannot be read says so.
 
     The parent process imports the estimator's configuration module for this (about
@@ -91,9 +93,11 @@ def checkpoint_mismatch(cfg: EstimatorConfig, fs_hz: float, blob: bytes) -> str 
         return f"unreadable: {err}"
     measured = cfg.sensor_noise == "measured"
     differ = _differences(then, estimator_config(cfg, fs_hz),
-                          skip={"noise_var"} if measured else set())
+                          skip={"noise_var", "noise_tested"} if measured else {"noise_tested"})
     if not measured and testing:
         differ.append("sensor_noise 'measured' (in its test) -> 'model'")
+    if measured and not testing and not then.noise_tested:
+        differ.append("sensor_noise 'model' -> 'measured' (its variances never tested)")
     return None if not differ else "made with other settings: " + "; ".join(differ)
 
 
