@@ -159,7 +159,7 @@ def test_receive_clock_step_shows_in_health(tmp_path: Path) -> None:
     svc = Service(cfg)
     try:
         svc.pipeline = cast(Any, SimpleNamespace(   # the real front end, no worker process
-            front=fe, stats=lambda: SimpleNamespace(priority_error=None)))
+            front=fe, stats=lambda: SimpleNamespace(priority_error=None), last_estimate=None))
         flags = svc.health_flags()
         sent: list[can.Message] = []
         CanSink(default_codec(), lambda m: sent.append(m) or True, 64).emit_health(
