@@ -13,10 +13,12 @@ read back as NaN (:func:`number`). Enums are written by name (``"ALARM"``, ``"RA
 - alert: ``{"seq", "t_s", "parameter", "severity", "state", "code", "value_rel",
   "message"}``;
 - estimate: ``{"t_s", "ess", "updated", "provisional", "v_sy_mps", "v_say_mps", "params": {name:
-  {"mean", "std"}}, "located", "left_out"}`` (:func:`params_json` is the ``params`` part
-  alone; ``located`` null, or the fault bank's change ``{"t_s", "parameter", "rel",
-  "rel_lo", "rel_hi", "like_lo", "like_hi"}``, :func:`located_json`; ``left_out`` the
-  names of the sensors the estimate did without, ``[]`` when it used them all).
+  {"mean", "std"}}, "located", "left_out", "unresolved"}`` (:func:`params_json` is the
+  ``params`` part alone; ``located`` null, or the fault bank's change ``{"t_s",
+  "parameter", "rel", "rel_lo", "rel_hi", "like_lo", "like_hi"}``, :func:`located_json`;
+  ``left_out`` the names of the sensors the estimate did without, ``[]`` when it used
+  them all; ``unresolved`` the parameters the sensors in use cannot resolve at that
+  speed, ``[]`` when none).
 """
 
 from __future__ import annotations
@@ -77,7 +79,7 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
             "v_say_mps": finite(est.v_say_mps),
             "params": params_json(est),
             "located": None if est.located is None else located_json(est.located),
-            "left_out": list(est.left_out)}
+            "left_out": list(est.left_out), "unresolved": list(est.unresolved)}
 
 
 def located_json(loc: Located) -> dict[str, Any]:

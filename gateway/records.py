@@ -76,7 +76,12 @@ class Estimate:
     filters left out for this estimate, having had no values (a dead node,
     :mod:`gateway.estimator.sensormask`), in sensor-set order; empty when every sensor
     was used or the producer does not say. What only those sensors show (with the body
-    node out, most of Csy) is then not in ``mean`` and ``std``.
+    node out, most of Csy) is then not in ``mean`` and ``std``. ``unresolved``: the
+    parameters (of ``names``) the sensors in use cannot resolve
+    (:mod:`gateway.estimator.observability`: their Cramér-Rao bound over 5 s of data is
+    above 6.25 % at the nominal and this speed band), e.g. Csy with the body node out of
+    a 3-sensor set; their ``mean`` is mostly what the filters knew before; empty when
+    every parameter is resolved or the producer does not say.
     """
 
     t_s: float
@@ -90,6 +95,7 @@ class Estimate:
     provisional: bool = False
     located: Located | None = None
     left_out: tuple[str, ...] = ()
+    unresolved: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         """``{name: {"mean": m, "std": s}}`` for each parameter."""

@@ -338,3 +338,26 @@ def test_a_provisional_estimate_goes_on_the_bus_as_converging_at_best(codec: Cod
     status = [v for m in sent for k, v in codec.decode_message(m).values.items()
               if k.endswith("_Status")]
     assert status == [1] * 3 + [2] * 3          # 1 Converging, 2 Valid (docs/can-bus.md)
+
+
+def test_an_unresolved_parameter_goes_on_the_bus_as_unresolved(
+        codec: Codec, db: cantools.database.can.Database) -> None:
+    """A parameter the sensors in use cannot resolve (a node left out,
+    gateway.estimator.observability) says 4 Unresolved, however narrow its σ; the others
+    keep Valid, and a gated estimate still says PredictOnly."""
+    from gateway.records import Estimate
+    from gateway.sinks.outputs import CanSink
+
+    sent: list[can.Message] = []
+    sink = CanSink(codec, lambda m: sent.append(m) or True, 1000)
+    tight = Estimate(1.0, (40e3, 3.0e6, 0.15), (100.0, 1e4, 3e-4), 900.0,
+                     left_out=("acc_bd",), unresolved=("csy_ns_per_m",))
+    sink.emit_estimate(tight)
+    sink.emit_estimate(Estimate(2.0, tight.mean, tight.std, 900.0, updated=False,
+                                unresolved=("csy_ns_per_m",)))
+    decoded = [codec.decode_message(m).values for m in sent]
+    status = [v for d in decoded for k, v in d.items() if k.endswith("_Status")]
+    assert status == [4, 2, 2, 3, 3, 3]     # 4 Unresolved, 2 Valid, 3 PredictOnly
+    for msg in ("GW_EstCsy", "GW_EstCsay", "GW_EstConicity"):
+        signal = db.get_message_by_name(msg).get_signal_by_name(f"{msg}_Status")
+        assert signal.choices[4] == "Unresolved" and signal.maximum == 4

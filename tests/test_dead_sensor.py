@@ -19,6 +19,7 @@ from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.estimator.sensormask import BACK_AFTER_S, DEAD_AFTER_S, next_mask, tally
 from gateway.model.vehicle import THETA_SEC42, sensor_set
 from gateway.records import Sample
+from gateway.sinks.outputs import estimate_status
 
 V_MPS, FS_HZ = 42.5, 1000.0
 NOMINAL = THETA_SEC42.as_array()
@@ -124,13 +125,39 @@ def test_the_estimates_name_the_sensors_left_out() -> None:
     Y = _outputs(6000, seed=33)
     Y[1500:3500, WSN] = np.nan
     filt = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=32, sensors=5, seed=3, mode="fast"))
-    said = {round(e.t_s, 3): e.left_out for e in filt.run(_samples(Y), output_every=100)}
+    ests = filt.run(_samples(Y), output_every=100)
+    said = {round(e.t_s, 3): e.left_out for e in ests}
+    said_unresolved = {round(e.t_s, 3): e.unresolved for e in ests}
     wsn = ("acc_w1", "acc_w2")
     for t_s, left in said.items():
         k = round(t_s * FS_HZ)            # the sample: its own value counts in the runs
         dead = 1500 + DEAD_N - 1 <= k < 3500 + BACK_N - 1
         assert left == (wsn if dead else ()), (t_s, left)
+        assert said_unresolved[t_s] == (), (t_s, said_unresolved[t_s])
     assert sum(1 for left in said.values() if left) >= 20
+
+
+def test_the_estimates_name_what_the_sensors_left_cannot_resolve() -> None:
+    """With the body node out of a 3-sensor vehicle the estimates call Csy unresolved
+    (gateway.estimator.observability), and the estimate frame's status for it says
+    Unresolved instead of Valid, only while the node is out; a filter restored in that
+    time says the same. With the wheelset node out of a 5-sensor one nothing is
+    unresolved (the test above)."""
+    Y = _outputs(6000, seed=38)[:, 2:]        # acc_b, gyro_b, acc_bd: the 3-sensor set
+    Y[1500:3500, 2] = np.nan
+    cfg = RBPFConfig(fs_hz=FS_HZ, n_particles=32, sensors=3, seed=3, mode="fast")
+    S = _samples(Y)
+    filt = RBPF(cfg)
+    said = {round(e.t_s * FS_HZ): e for e in filt.run(S, output_every=100)}
+    for k, est in said.items():
+        dead = 1500 + DEAD_N - 1 <= k < 3500 + BACK_N - 1
+        assert est.unresolved == (("csy_ns_per_m",) if dead else ()), (k, est.unresolved)
+        assert (estimate_status(est, 0) == "Unresolved") == dead, k
+        assert "Unresolved" not in (estimate_status(est, 1), estimate_status(est, 2))
+    cut = RBPF(cfg)
+    cut.run(S[:2500])
+    restored = RBPF.restore(cut.checkpoint())
+    assert restored.run(S[2500:2600])[-1].unresolved == ("csy_ns_per_m",)
 
 
 @pytest.mark.parametrize("mode", ["fast", "exact"])

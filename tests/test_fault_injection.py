@@ -218,6 +218,10 @@ class Fault:
     flag: str | None = None
     """GW_HealthFlags signal that must show the fault live (max over the frames read)."""
     flag_expect: Callable[[float], bool] | None = None
+    status: tuple[str, int] | None = None
+    """(estimate message, value): the ``_Status`` the last updated frame of that message
+    (not PredictOnly) read live must carry (e.g. 4 Unresolved for Csy with the body node
+    out)."""
     runners: frozenset[str] = frozenset({"replay", "live"})
     min_updates: float = 0.95
     """Measurement updates at least this fraction of the grid points (not blind)."""
@@ -494,7 +498,7 @@ FAULTS += [
           "gaps[BDN_Lat][lost] - gaps[BGN_Lat][lost]", lambda v: v >= 3000, ">= 3000",
           lambda fe: _lost_beyond(fe, "BDN_Lat"), inject=delete("BDN_Lat", 1_000_000),
           flag="GW_HealthFlags_BdnLeftOut", flag_expect=lambda v: v == 1,
-          see_also="tests/test_dead_sensor.py"),
+          status=("GW_EstCsy", 4), see_also="tests/test_dead_sensor.py"),
     Fault("repeated frames", "repetition",
           "20 BGN frames from 2.5 s sent twice (same counter, same bytes)",
           "rejected[counter_repeated]", lambda v: v == 20, "20",
@@ -597,6 +601,11 @@ def test_live(row: Fault, tmp_path: Path) -> None:
         assert _wait(lambda: len(run.decoded("GW_HealthFlags")) >= h0 + 2, 10)
         fe = svc.pipeline.front.stats()
         flags = _flags_max(run)
+        if row.status is not None:
+            message, want = row.status
+            said = [d[f"{message}_Status"] for d in run.decoded(message)]
+            updated = [v for v in said if v != 3]   # 3 PredictOnly: after the traffic
+            assert updated and updated[-1] == want, (message, said)
     _check(row, row.measure(fe))
     assert fe.gating["updated"] >= row.min_updates * 0.9 * DURATION_S * 1000, fe.gating
     if row.flag is not None:

@@ -104,7 +104,7 @@ def test_estimate_form_is_strict_json():
                         "csy_ns_per_m": {"mean": 40e3, "std": 1e3},
                         "csay_ns_per_m": {"mean": None, "std": 1e5},
                         "conicity": {"mean": 0.15, "std": None}},
-                    "located": None, "left_out": []}
+                    "located": None, "left_out": [], "unresolved": []}
     dead = strict(jsonform.estimate_json(dataclasses.replace(NAN_EST, left_out=("acc_bd",))))
     assert dead["left_out"] == ["acc_bd"]
     loc = Located(1.4, "csy_ns_per_m", 0.5, 0.33, math.nan, 0.0, math.inf)
@@ -156,6 +156,14 @@ def test_every_estimate_writer_uses_the_one_form():
     assert not any("without sensors" in line
                    for line in render.estimates(estimates_view(NAN_EST, thresholds={}))
                    .splitlines())
+    weak = dataclasses.replace(dead, unresolved=("csy_ns_per_m",))
+    assert strict(replay_estimate(weak))["unresolved"] == ["csy_ns_per_m"]
+    assert "unresolved" not in strict(replay_estimate(dead))
+    view = strict(estimates_view(weak, thresholds={}))
+    assert view["unresolved"] == strict(jsonform.estimate_json(weak))["unresolved"]
+    assert render.estimates(view).splitlines()[2] == (
+        "unresolved by the sensors in use: csy_ns_per_m (its value is mostly what was "
+        "known before)")
 
 
 def test_state_directory_of_the_previous_version_loads(tmp_path: Path):

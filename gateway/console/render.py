@@ -153,6 +153,9 @@ def estimates(d: Mapping[str, Any]) -> str:
     if d.get("left_out"):
         head += ("\nwithout sensors " + ", ".join(map(str, d["left_out"])) + " (no data: "
                  "left out); what only they show is not in these values")
+    if d.get("unresolved"):
+        head += ("\nunresolved by the sensors in use: " + ", ".join(map(str, d["unresolved"]))
+                 + " (its value is mostly what was known before)")
     rows = [head, f"{'parameter':<21}{'value':>8} {'+-sigma':>7} {'unit':<6}"
                   f"{'% nom':>6}  {'limits A/W/Al':<16}status"]
     for name, p in params.items():

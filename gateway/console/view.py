@@ -184,27 +184,31 @@ def estimates_view(est: Estimate | None, *,
                    nominal: Mapping[str, float] = NOMINAL) -> dict[str, Any]:
     """The ``estimates()`` dict from the latest estimate.
 
-    ``{"t_s", "ess", "particles", "updated", "left_out", "parameters": {name: {"mean", "std",
-    "nominal", "value_rel", "sigma_rel", "thresholds": {"low": [A, W, Al], "high": [...]},
+    ``{"t_s", "ess", "particles", "updated", "left_out", "unresolved", "parameters": {name:
+    {"mean", "std", "nominal", "value_rel", "sigma_rel", "thresholds": {"low": [A, W, Al],
+    "high": [...]},
     "status": "OK"|"ADVISORY"|"WARNING"|"ALARM", "alert_state", "alert_seq",
     "confident"}}}``. ``status`` is the active alert's severity (the policy's judgement
     with hold times), else "OK"; ``confident`` is False while ``sigma_rel`` is above the
     policy's confidence gate ``max_std_rel``; ``left_out`` the sensors the estimate did
-    without (a dead node), ``[]`` when none. ``est`` None gives no parameters.
+    without (a dead node), ``[]`` when none; ``unresolved`` the parameters the sensors
+    in use cannot resolve (:mod:`gateway.estimator.observability`), ``[]`` when none.
+    ``est`` None gives no parameters.
 
     Built from the one estimate form (:func:`gateway.jsonform.estimate_json`: ``t_s``,
-    ``ess``, ``updated``, ``left_out``, each parameter's ``mean`` and ``std``) plus, per
-    parameter, what the judge (:mod:`gateway.alerts.judge`) makes of it; it differs from
-    that form because it is the console's documented reply (docs/console.md), made for a
-    fitter.
+    ``ess``, ``updated``, ``left_out``, ``unresolved``, each parameter's ``mean`` and
+    ``std``) plus, per parameter, what the judge (:mod:`gateway.alerts.judge`) makes of
+    it; it differs from that form because it is the console's documented reply
+    (docs/console.md), made for a fitter.
     """
     out: dict[str, Any] = {"t_s": None, "ess": None, "particles": particles,
-                           "updated": None, "left_out": [], "parameters": {}}
+                           "updated": None, "left_out": [], "unresolved": [],
+                           "parameters": {}}
     if est is None:
         return out
     form = estimate_json(est)                  # the one estimate form, then the judge's view
     out.update(t_s=form["t_s"], ess=form["ess"], updated=form["updated"],
-               left_out=form["left_out"])
+               left_out=form["left_out"], unresolved=form["unresolved"])
     by_param = {a.parameter: a for a in active}
     for name, mean, std in zip(est.names, est.mean, est.std, strict=True):
         nom = nominal.get(name)

@@ -34,6 +34,9 @@ and H are recomputed for every particle.
 
 Dead sensors: a sensor missing from half a second of samples with data is left out
 (a zero row of H) until it has been back as long (:mod:`gateway.estimator.sensormask`).
+Each estimate names the parameters the sensors in use cannot resolve at its speed band
+(:mod:`gateway.estimator.observability`): Csy with the body node out of a 3-sensor set,
+or below about 15 m/s with every sensor.
 
 The core does no I/O and reads no clock; randomness comes from the Generator given to
 :meth:`RBPF.reset` (or made from ``config.seed``). Checkpoints are bit-exact.
@@ -52,6 +55,7 @@ import numpy as np
 
 from gateway.errors import EstimatorError, ModelError
 from gateway.estimator import checkpoint as ckpt
+from gateway.estimator import observability as obs
 from gateway.estimator import particles as pt
 from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.faultbank import Detection, FaultBank, FaultBankConfig
@@ -125,6 +129,8 @@ class RBPF:
         self._left_out = np.zeros(self.ny, dtype=bool)    # dead sensors (sensormask)
         self._absent = np.zeros(self.ny, dtype=np.int64)
         self._present = np.zeros(self.ny, dtype=np.int64)
+        self._unresolved: tuple[str, ...] = ()    # what the sensors in use cannot resolve
+        self._bounds: dict[tuple[bytes, float], tuple[str, ...]] = {}
         self._fast = config.mode == "fast"
         self._steady = False
         self._warm_left = 0
@@ -238,9 +244,28 @@ class RBPF:
         H = self.coords.output(self.sensors, self._v_ref)
         H[self._left_out] = 0.0
         self._H = np.ascontiguousarray(H)
+        self._unresolved = self._unresolved_now()
         if self._bank is not None:
             self._bank.set_model(self._disc, self._null, self._H, self._r,
                                  float(track_intensity(1.0, self._v_ref)))
+
+    def _unresolved_now(self) -> tuple[str, ...]:
+        """The parameters the sensors in use cannot resolve (:mod:`observability`), at the
+        configured nominal and the centre of the speed band of v_ref. A function of the
+        sensors left out and v_ref alone (a restored filter says the same), kept per set
+        and band (about 30 ms each)."""
+        if not np.isfinite(self._v_ref):
+            return ()
+        v = obs.band_speed(self._v_ref)
+        key = (self._left_out.tobytes(), v)
+        if key not in self._bounds:
+            cfg, use = self.config, ~self._left_out
+            names = tuple(s for s, u in zip(self.sensors, use, strict=True) if u)
+            bound = obs.bound_rel(self.coords, cfg.nominal.as_array(), v,
+                                  self.coords.output(names, v), self._r[use],
+                                  float(track_intensity(cfg.ar_paper, v)), cfg.fs_hz)
+            self._bounds[key] = obs.unresolved(cfg.names, bound)
+        return self._bounds[key]
 
     def _own_prior(self) -> np.ndarray:
         """Each particle's state prior, lane layout: its covariance 2**13 samples from rest.
@@ -971,7 +996,8 @@ class RBPF:
                         ess=ess, v_sy_mps=v_sy, v_say_mps=v_say,
                         updated=updated, names=self.config.names, located=self._located(t_s),
                         left_out=tuple(s for s, out in zip(self.sensors, self._left_out,
-                                                           strict=True) if out))
+                                                           strict=True) if out),
+                        unresolved=self._unresolved)
 
     def _located(self, t_s: float) -> Located | None:
         """The bank's latest detection, on every estimate up to :data:`LOCATED_FOR_S`

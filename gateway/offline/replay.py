@@ -59,6 +59,8 @@ def estimate_json(est: Estimate) -> dict[str, Any]:
         out["located"] = j["located"]
     if j["left_out"]:                       # only while a sensor is left out (a dead node)
         out["left_out"] = j["left_out"]
+    if j["unresolved"]:                     # only while the sensors in use cannot resolve some
+        out["unresolved"] = j["unresolved"]
     return out
 
 

@@ -95,6 +95,8 @@ def estimate_status(est: Estimate, index: int) -> str:
     """The estimate frame's status word for parameter ``index``."""
     if not est.updated:
         return "PredictOnly"
+    if est.names[index] in est.unresolved:
+        return "Unresolved"
     mean, std = est.mean[index], est.std[index]
     if not (math.isfinite(mean) and math.isfinite(std)) or mean <= 0:
         return "Init"
