@@ -3,6 +3,7 @@ copied off the vehicle twice with overlap, stored once per entry, the copy left 
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import subprocess
 import sys
@@ -158,3 +159,40 @@ def test_a_unit_known_only_from_its_state_directory_is_trended(tmp_path: Path) -
     assert [(a["source"], a["severity"], a["state"]) for a in alerts] == [
         ("onboard", "advisory", "raised")]
     assert (tmp_path / "report" / "unit-V03-B1.png").stat().st_size > 0
+
+
+def test_unresolved_on_board_estimates_stay_out_of_the_trend(tmp_path: Path) -> None:
+    """The vehicle's own history says when its sensors could not resolve Csy (the
+    estimate-history line's ``unresolved``, since 2026-11-28): those days' Csy is kept
+    but left out of the trend, and the ranking counts them. Lines written before carry
+    none and read as resolved."""
+    import csv
+
+    from gateway.fleet.report import build_report
+    from gateway.sinks.store.codec import estimate_from_json, estimate_to_json
+
+    state, clock = tmp_path / "in" / "V05" / "B1" / "state", Clock()
+    with StateStore(state, clock=clock) as st:
+        for d in range(6):                  # healthy Csy; the body node dead from day 3
+            for k in range(3):
+                clock.now_s = T0_S + d * DAY_S + 10.0 * k
+                est = _estimate(clock.now_s, 1.0)
+                if d >= 3:
+                    est = dataclasses.replace(est, left_out=("acc_bd",),
+                                              unresolved=(PARAMS[0],))
+                st.record_estimate(est)
+    store = Store(tmp_path / "store")
+    store.ingest([tmp_path / "in"], Config())
+    board = read_onboard(store.root, "V05", "B1")
+    assert board.unresolved[:, 0].tolist() == [False] * 9 + [True] * 9
+    assert not board.unresolved[:, 1:].any()
+    rank = build_report(store, "none-replayed", tmp_path / "report")
+    assert [r["unresolved_runs"] for r in rank] == ["Csy 3"]
+    with open(tmp_path / "report" / "trends.csv", encoding="utf-8", newline="") as f:
+        runs = {r["parameter"]: int(r["runs"]) for r in csv.DictReader(f)}
+    assert runs == {"Csy": 3, "Csay": 6, "λ": 6}
+    line = estimate_to_json(_estimate(1.0, 1.0), T0_S)
+    assert "unresolved" not in line and estimate_from_json(line).unresolved == ()
+    weak = estimate_to_json(dataclasses.replace(_estimate(1.0, 1.0), unresolved=(PARAMS[0],)),
+                            T0_S)
+    assert estimate_from_json(weak).unresolved == (PARAMS[0],)

@@ -60,12 +60,15 @@ class StateInfo:
 class OnboardHistory:
     """A unit's on-board history, oldest first. ``estimates``: ``wall_s`` (E,) Unix time
     written, ``mean``/``std`` (E, 3) in :data:`PARAMS` order and units; ``alerts`` in the
-    :func:`gateway.jsonform.alert_json` form plus ``wall_time_s``."""
+    :func:`gateway.jsonform.alert_json` form plus ``wall_time_s``; ``unresolved`` (E, 3)
+    bool, the parameters the vehicle's sensors could not resolve (False in parts
+    ingested before 2026-11-28)."""
 
     wall_s: np.ndarray
     mean: np.ndarray
     std: np.ndarray
     alerts: tuple[dict[str, object], ...]
+    unresolved: np.ndarray
 
 
 def unit_dir(root: Path, kind: str, vehicle: str, bogie: str) -> Path:
@@ -91,14 +94,15 @@ def onboard_units(root: Path) -> list[tuple[str, str]]:
     return sorted({(s.vehicle, s.bogie) for s in state_infos(root)})
 
 
-def daily_points(board: OnboardHistory) -> list[tuple[float, np.ndarray, np.ndarray]]:
+def daily_points(board: OnboardHistory
+                 ) -> list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
     """A unit's on-board history as one point per UTC day: its last estimate that day
-    (``wall_s``, ``mean`` (3,), ``std`` (3,)), oldest first; the trend input for a unit
-    whose logs were not kept."""
+    (``wall_s``, ``mean`` (3,), ``std`` (3,), ``unresolved`` (3,) bool), oldest first;
+    the trend input for a unit whose logs were not kept."""
     last: dict[str, int] = {}
     for k, w in enumerate(board.wall_s):
         last[_day(float(w))] = k
-    return [(float(board.wall_s[k]), board.mean[k], board.std[k])
+    return [(float(board.wall_s[k]), board.mean[k], board.std[k], board.unresolved[k])
             for _, k in sorted(last.items())]
 
 
@@ -125,6 +129,7 @@ def _estimate_rows(entries: Iterable[EstimateEntry]) -> list[dict[str, float]]:
             i = e.names.index(p) if p in e.names else -1
             row[f"{p}_mean"] = e.mean[i] if i >= 0 else float("nan")
             row[f"{p}_std"] = e.std[i] if i >= 0 else float("nan")
+            row[f"{p}_unresolved"] = p in e.unresolved
         rows.append(row)
     return rows
 
@@ -171,4 +176,6 @@ def read_onboard(root: Path, vehicle: str, bogie: str) -> OnboardHistory:
                       dtype=np.float64).reshape(n, 3),
         std=np.array([[r[f"{p}_std"] for p in PARAMS] for r in est],
                      dtype=np.float64).reshape(n, 3),
+        unresolved=np.array([[bool(r.get(f"{p}_unresolved", False)) for p in PARAMS]
+                             for r in est], dtype=bool).reshape(n, 3),
         alerts=tuple(alerts))

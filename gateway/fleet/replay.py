@@ -82,6 +82,7 @@ def replay_task(store_root: str, info: RunInfo, cfg: Config, version: str,
     for j, name in enumerate(PARAMS):
         cols[f"{name}_mean"] = est.mean[:, j]
         cols[f"{name}_std"] = est.std[:, j]
+        cols[f"{name}_unresolved"] = est.unresolved[:, j]
     meta = {"railgw.run_id": info.run_id, "railgw.estimator": version,
             "railgw.alerts": json.dumps(list(est.alerts), sort_keys=True),
             "railgw.particles": str(cfg.estimator.particles)}

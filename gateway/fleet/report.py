@@ -19,7 +19,7 @@ import csv
 import datetime as dt
 import html
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,9 @@ class RunRow:
     rel: tuple[float, float, float]
     std_rel: tuple[float, float, float]
     alerts: tuple[dict[str, object], ...]
+    unresolved: tuple[str, ...] = ()
+    """Parameters the final estimate's sensors could not resolve (a dead node, a low
+    speed): kept here and in the plots, left out of the unit's trend."""
 
 
 @dataclass(frozen=True)
@@ -54,6 +57,9 @@ class UnitTrends:
     vehicle: str
     bogie: str
     trends: dict[str, Trend]
+    unresolved: dict[str, int] = field(default_factory=dict)
+    """Per parameter, the unit's runs whose final estimate left it unresolved (not in
+    its trend), where there are any."""
 
     def key(self, now_s: float) -> tuple[float, float]:
         """Sort key, worst first: days to the soonest crossing (negative once crossed),
@@ -96,19 +102,25 @@ def load_runs(store: Store, version: str) -> list[RunRow]:
         mean = np.column_stack([table.column(f"{p}_mean").to_numpy() for p in PARAMS])
         std = np.column_stack([table.column(f"{p}_std").to_numpy() for p in PARAMS])
         ess = table.column("ess").to_numpy()
+        names = set(table.column_names)        # results from before 2026-11-28: none
+        weak = np.column_stack([table.column(f"{p}_unresolved").to_numpy()
+                                if f"{p}_unresolved" in names else np.zeros(len(t), bool)
+                                for p in PARAMS])
         series.setdefault((info.vehicle, info.bogie), []).append(
-            RunEstimates(t, mean, std, ess, ()))
-        finals.append((info, float(t[-1]), mean[-1], std[-1]))
+            RunEstimates(t, mean, std, ess, (), weak))
+        finals.append((info, float(t[-1]), mean[-1], std[-1],
+                       tuple(p for j, p in enumerate(PARAMS) if weak[-1, j])))
     alerts = {unit: unit_alerts(runs) for unit, runs in series.items()}
     rows = []
-    for info, t_end, m, sd in finals:
+    for info, t_end, m, sd, unresolved in finals:
         unit = (info.vehicle, info.bogie)
         t_start = info.t0_s
         rows.append(RunRow(info.vehicle, info.bogie, info.run_id, t_end,
                            tuple(m[j] / NOMINAL[p] for j, p in enumerate(PARAMS)),
                            tuple(sd[j] / NOMINAL[p] for j, p in enumerate(PARAMS)),
                            tuple(a for a in alerts[unit]
-                                 if t_start <= float(a["t_s"]) <= t_end)))  # type: ignore[arg-type]
+                                 if t_start <= float(a["t_s"]) <= t_end),  # type: ignore[arg-type]
+                           unresolved))
     rows += onboard_rows(store, {(r.vehicle, r.bogie) for r in rows})
     if not rows:
         raise InputError(f"expected replay results for estimator {version} or ingested state "
@@ -124,10 +136,11 @@ def onboard_rows(store: Store, replayed: set[tuple[str, str]]) -> list[RunRow]:
     for veh, bog in onboard_units(store.root):
         if (veh, bog) in replayed:
             continue
-        for wall_s, mean, std in daily_points(read_onboard(store.root, veh, bog)):
+        for wall_s, mean, std, weak in daily_points(read_onboard(store.root, veh, bog)):
             rows.append(RunRow(veh, bog, f"onboard-{iso(wall_s)[:10]}", wall_s,
                                tuple(mean[j] / NOMINAL[p] for j, p in enumerate(PARAMS)),
-                               tuple(std[j] / NOMINAL[p] for j, p in enumerate(PARAMS)), ()))
+                               tuple(std[j] / NOMINAL[p] for j, p in enumerate(PARAMS)), (),
+                               tuple(p for j, p in enumerate(PARAMS) if weak[j])))
     return rows
 
 
@@ -140,10 +153,12 @@ def unit_trends(rows: list[RunRow], level: str) -> list[UnitTrends]:
     for (veh, bog), rs in sorted(units.items()):
         t = np.array([r.t_s for r in rs])
         trends = {}
-        for j, p in enumerate(PARAMS):
-            trends[p] = fit_trend(t, np.array([r.rel[j] for r in rs]),
+        for j, p in enumerate(PARAMS):      # an unresolved value is no measurement of it
+            trends[p] = fit_trend(t, np.array([math.nan if p in r.unresolved else r.rel[j]
+                                               for r in rs]),
                                   np.array([r.std_rel[j] for r in rs]), *thr[p])
-        out.append(UnitTrends(veh, bog, trends))
+        weak = {p: k for p in PARAMS if (k := sum(p in r.unresolved for r in rs))}
+        out.append(UnitTrends(veh, bog, trends, weak))
     return out
 
 
@@ -165,7 +180,9 @@ def ranking(units: list[UnitTrends], now_s: float) -> list[dict[str, object]]:
                     "current_rel": round(tr.current_rel, 4), "threshold_rel": tr.threshold_rel,
                     "crossing": iso(tr.crossing_s), "crossing_lo": iso(tr.crossing_lo_s),
                     "crossing_hi": iso(tr.crossing_hi_s),
-                    "days_to_crossing": round(days, 1) if abs(days) < 1e5 else ""})
+                    "days_to_crossing": round(days, 1) if abs(days) < 1e5 else "",
+                    "unresolved_runs": ", ".join(f"{LABELS[q]} {k}"
+                                                 for q, k in u.unresolved.items())})
     return out
 
 
@@ -197,6 +214,10 @@ def _plot_unit(path: Path, u: UnitTrends, rs: list[RunRow], board: OnboardHistor
                     board.mean[:, j] / NOMINAL[p], ".", color="0.6", ms=2,
                     label="on board (state directory)")
         ax.errorbar(when, y, yerr=2 * s, fmt="o", ms=3, lw=0.8, label="run estimate ±2σ")
+        weak = [k for k, r in enumerate(rs) if p in r.unresolved]
+        if weak:
+            ax.plot([when[k] for k in weak], y[weak], "x", color="C3", ms=7,
+                    label="unresolved (not in the trend)")
         t_end = max(t[-1], tr.crossing_hi_s if math.isfinite(tr.crossing_hi_s) else t[-1],
                     tr.crossing_s if math.isfinite(tr.crossing_s) else t[-1])
         tt = np.linspace(t[0], t_end, 200)

@@ -58,13 +58,16 @@ class RunSamples:
 @dataclass(frozen=True)
 class RunEstimates:
     """What the estimator made of one run: ``t_s`` (E,), ``mean``/``std`` (E, 3) in
-    :data:`PARAMS` order and units; ``alerts`` as ``gateway replay`` reports them."""
+    :data:`PARAMS` order and units; ``alerts`` as ``gateway replay`` reports them;
+    ``unresolved`` (E, 3) bool: the sensors in use could not resolve that parameter
+    (``Estimate.unresolved``: a dead node, a low speed)."""
 
     t_s: np.ndarray
     mean: np.ndarray
     std: np.ndarray
     ess: np.ndarray
     alerts: tuple[dict[str, object], ...]
+    unresolved: np.ndarray
 
 
 def thresholds() -> dict[str, ParamPolicy]:
@@ -169,7 +172,9 @@ def estimate_run(samples: RunSamples, cfg: Config) -> RunEstimates:
         mean=np.array([e.mean[:3] for e in estimates], dtype=np.float64).reshape(n, 3),
         std=np.array([e.std[:3] for e in estimates], dtype=np.float64).reshape(n, 3),
         ess=np.array([e.ess for e in estimates], dtype=np.float64),
-        alerts=tuple(alert_json(a) for a in alerts))
+        alerts=tuple(alert_json(a) for a in alerts),
+        unresolved=np.array([[p in e.unresolved for p in PARAMS] for e in estimates],
+                            dtype=bool).reshape(n, 3))
 
 
 def unit_alerts(runs: list[RunEstimates]) -> list[dict[str, object]]:

@@ -48,7 +48,8 @@ class AlertEntry:
 
 @dataclass(frozen=True)
 class EstimateEntry:
-    """One estimate-history point: ``mean``/``std`` in ``names`` order (N s/m, N s/m, -)."""
+    """One estimate-history point: ``mean``/``std`` in ``names`` order (N s/m, N s/m, -);
+    ``unresolved`` the parameters its sensors could not resolve (``Estimate.unresolved``)."""
 
     t_s: float
     wall_time_s: float
@@ -56,6 +57,7 @@ class EstimateEntry:
     mean: tuple[float, ...]
     std: tuple[float, ...]
     ess: float
+    unresolved: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -91,13 +93,17 @@ def alert_from_json(d: dict[str, Any]) -> AlertEntry:
 def estimate_to_json(e: Estimate, wall_time_s: float) -> dict[str, Any]:
     """An estimate-history line, derived from the one estimate form: only ``t_s``,
     ``ess`` and ``params``, each parameter as a ``[mean, std]`` pair, plus
-    ``wall_time_s``. It differs because it is the persisted format (docs/alerts.md: files
-    already written must load) and because it is compact: the history keeps 14 days at
-    one point per 10 s in 32 MiB; ``{"mean", "std"}`` objects make a line ~18 % longer.
-    The alert line needs no such difference: it is the one form plus ``wall_time_s``."""
+    ``wall_time_s``, and ``unresolved`` only while there are any (since 2026-11-28). It
+    differs because it is the persisted format (docs/alerts.md: files already written
+    must load) and because it is compact: the history keeps 14 days at one point per 10
+    s in 32 MiB; ``{"mean", "std"}`` objects make a line ~18 % longer. The alert line
+    needs no such difference: it is the one form plus ``wall_time_s``."""
     j = jsonform.estimate_json(e)
-    return {"t_s": j["t_s"], "wall_time_s": finite(wall_time_s), "ess": j["ess"],
+    line = {"t_s": j["t_s"], "wall_time_s": finite(wall_time_s), "ess": j["ess"],
             "params": {n: [p["mean"], p["std"]] for n, p in j["params"].items()}}
+    if j["unresolved"]:
+        line["unresolved"] = j["unresolved"]
+    return line
 
 
 def estimate_from_json(d: dict[str, Any]) -> EstimateEntry:
@@ -106,7 +112,7 @@ def estimate_from_json(d: dict[str, Any]) -> EstimateEntry:
     mean = tuple(number(params[n][0]) for n in names)
     std = tuple(number(params[n][1]) for n in names)
     return EstimateEntry(number(d["t_s"]), number(d["wall_time_s"]), names, mean, std,
-                         number(d["ess"]))
+                         number(d["ess"]), tuple(str(n) for n in d.get("unresolved", ())))
 
 
 def baseline_to_json(b: BaselineEntry) -> dict[str, Any]:
