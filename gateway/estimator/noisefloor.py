@@ -35,6 +35,7 @@ import numpy as np
 from gateway.errors import EstimatorError
 from gateway.model.vehicle import (
     VehicleParams,
+    frequency_response,
     input_matrix,
     output_matrix,
     system_matrix,
@@ -125,9 +126,7 @@ def model_band_variance(params: VehicleParams, theta: np.ndarray, v_mps: float,
     H = output_matrix(A, sensors)
     q = track_intensity(ar_paper, v_mps)
     f_hz = np.fft.rfftfreq(segment_len(fs_hz), 1.0 / fs_hz)[band_bins(fs_hz)]
-    eye = np.eye(A.shape[0])
     total = np.zeros(H.shape[0])
-    for f in np.concatenate([f_hz, fs_hz - f_hz]):
-        T = H @ np.linalg.solve(2j * np.pi * f * eye - A, G)      # (ny, nw)
+    for T in frequency_response(A, G, H, np.concatenate([f_hz, fs_hz - f_hz])):  # (ny, nw)
         total += 2.0 * q * np.sum(np.abs(T) ** 2, axis=1)
     return total / len(f_hz) * fs_hz / 2.0

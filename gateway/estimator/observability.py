@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gateway.model.coordinates import NZ, FilterCoords
+from gateway.model.coordinates import FilterCoords
+from gateway.model.vehicle import frequency_response
 
 __all__ = ["HORIZON_S", "LIMIT_REL", "SPEED_BAND_REL", "band_speed", "bound_rel",
            "information_rate", "unresolved"]
@@ -59,14 +60,11 @@ def band_speed(v_mps: float) -> float:
     return float(np.exp(np.round(np.log(v_mps) / step) * step))
 
 
-def _spectra(A: np.ndarray, H: np.ndarray, Q: np.ndarray, R: np.ndarray,
+def _spectra(A: np.ndarray, g: np.ndarray, H: np.ndarray, q: float, R: np.ndarray,
              f_hz: np.ndarray) -> np.ndarray:
-    """S(f) (nf, ny, ny): ``H (i2πf I − A)⁻¹`` from the transposed solve (one per f)."""
-    M = (2j * np.pi * f_hz)[:, None, None] * np.eye(NZ) - A
-    T = np.linalg.solve(M.transpose(0, 2, 1),
-                        np.broadcast_to(H.T.astype(complex), (len(f_hz), *H.T.shape))
-                        ).transpose(0, 2, 1)
-    return T @ Q @ T.conj().transpose(0, 2, 1) + R
+    """S(f) (nf, ny, ny) for the noise input ``g`` (16, 2) of intensity ``q``."""
+    T = frequency_response(A, g, H, f_hz)
+    return q * (T @ T.conj().transpose(0, 2, 1)) + R
 
 
 def information_rate(coords: FilterCoords, theta: np.ndarray, v_mps: float, H: np.ndarray,
@@ -77,16 +75,16 @@ def information_rate(coords: FilterCoords, theta: np.ndarray, v_mps: float, H: n
     (m²/s): the Whittle integral of the module docstring."""
     th = np.asarray(theta, dtype=float)[:3]
     f_hz = np.geomspace(F_LOW_HZ, fs_hz / 2.0, FREQS_N)
-    Q = q * coords.noise_unit()
+    g = coords.noise_input()
     R = np.diag(np.asarray(noise_var, dtype=float) / fs_hz)
-    S_inv = np.linalg.inv(_spectra(coords.system(th, v_mps), H, Q, R, f_hz))
+    S_inv = np.linalg.inv(_spectra(coords.system(th, v_mps), g, H, q, R, f_hz))
     dS = []
     for i in range(3):
         up, down = th.copy(), th.copy()
         up[i] *= 1.0 + STEP_REL
         down[i] *= 1.0 - STEP_REL
-        dS.append(S_inv @ (_spectra(coords.system(up, v_mps), H, Q, R, f_hz)
-                           - _spectra(coords.system(down, v_mps), H, Q, R, f_hz))
+        dS.append(S_inv @ (_spectra(coords.system(up, v_mps), g, H, q, R, f_hz)
+                           - _spectra(coords.system(down, v_mps), g, H, q, R, f_hz))
                   / (2.0 * STEP_REL))
     J = np.empty((3, 3))
     for i in range(3):
@@ -107,7 +105,7 @@ def bound_rel(coords: FilterCoords, theta: np.ndarray, v_mps: float, H: np.ndarr
         var = np.diag(np.linalg.inv(J))
     except np.linalg.LinAlgError:
         return np.full(3, np.inf)
-    return np.where(var > 0, np.sqrt(np.abs(var) / horizon_s), np.inf)
+    return np.where(var > 0, np.sqrt(np.maximum(var, 0.0) / horizon_s), np.inf)
 
 
 def unresolved(names: tuple[str, ...], bound: np.ndarray,

@@ -102,9 +102,13 @@ class FilterCoords:
         """A in filter coordinates for one theta (3,), shape (16, 16)."""
         return np.tensordot(theta_basis(np.asarray(theta, dtype=float)), self.terms(v_mps), 1)
 
+    def noise_input(self) -> np.ndarray:
+        """The noise input matrix in filter coordinates, ``D^-1 Pm G``, (16, 2)."""
+        return self.to_filter @ input_matrix()
+
     def noise_unit(self) -> np.ndarray:
         """Continuous noise intensity matrix ``D^-1 Pm G G' Pm' D^-1`` for Q = 1, (16, 16)."""
-        g = self.to_filter @ input_matrix()
+        g = self.noise_input()
         return g @ g.T
 
     def output(self, sensors: tuple[str, ...] | int, v_mps: float) -> np.ndarray:

@@ -245,6 +245,15 @@ def output_matrix(A: np.ndarray, sensors: tuple[str, ...] | int) -> np.ndarray:
     return H
 
 
+def frequency_response(A: np.ndarray, G: np.ndarray, H: np.ndarray,
+                       f_hz: np.ndarray) -> np.ndarray:
+    """``H (i 2 pi f I - A)^-1 G`` at each frequency, shape (nf, ny, nw): the outputs'
+    response to the noise inputs (any state coordinates; ``f`` must avoid A's
+    eigenvalues on the imaginary axis, e.g. f = 0 for a model with a static mode)."""
+    M = (2j * np.pi * np.asarray(f_hz, dtype=float))[:, None, None] * np.eye(A.shape[0]) - A
+    return H @ np.linalg.solve(M, np.broadcast_to(G.astype(complex), (len(M), *G.shape)))
+
+
 def output_rows(sensors: tuple[str, ...] | int) -> tuple[list[int], list[int]]:
     """For batched use: (positions in the sensor set that are accelerations, their A rows)."""
     names = sensor_set(sensors) if isinstance(sensors, int) else sensors
