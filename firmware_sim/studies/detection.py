@@ -103,13 +103,14 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
                    sensor_noise: str = "measured", moves_drop_null: bool | None = None,
                    start_ramp_s: float | None = None, locate_min_s: float | None = None,
                    locate_max_s: float | None = None, replay_s: float | None = None,
-                   redraw_from: str | None = None,
+                   replay_cov_scale: float | None = None, redraw_from: str | None = None,
                    start_ramp_m: float | None = None,
                    kernel_delta: float | None = None) -> Filter:
     """The filter the service builds from its defaults (drift, monitor, fault bank, the
     sensor-noise test, the start's likelihood ramp); ``moves_drop_null``,
     ``start_ramp_s`` and ``start_ramp_m`` override those options of the filter, ``locate_min_s``,
-    ``locate_max_s``, ``replay_s`` and ``redraw_from`` those of its fault bank
+    ``locate_max_s``, ``replay_s``, ``replay_cov_scale`` and ``redraw_from`` those of its
+    fault bank
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`,
     :class:`gateway.estimator.faultbank.FaultBankConfig`; None: the service's);
     ``kernel_delta`` the service's ``[estimator] kernel_delta`` (with its floor)."""
@@ -132,6 +133,8 @@ def service_filter(sensors: int, seed: int, particles: int, mode: str,
             bank, locate_min_s=bank.locate_min_s if locate_min_s is None else locate_min_s,
             locate_max_s=bank.locate_max_s if locate_max_s is None else locate_max_s,
             replay_s=bank.replay_s if replay_s is None else replay_s,
+            replay_cov_scale=(bank.replay_cov_scale if replay_cov_scale is None
+                              else replay_cov_scale),
             redraw_from=bank.redraw_from if redraw_from is None else redraw_from))
     if rbpf == filt.config:
         return filt
@@ -177,7 +180,8 @@ def _bank_columns(filt: Filter) -> dict[str, Any]:
             "locate_min_s": None if bank is None else bank.locate_min_s,
             "locate_s": None if bank is None else bank.locate_s,
             "locate_max_s": None if bank is None else bank.locate_max_s,
-            "replay_s": None if bank is None else bank.replay_s}
+            "replay_s": None if bank is None else bank.replay_s,
+            "replay_cov_scale": None if bank is None else bank.replay_cov_scale}
 
 
 def _last(filt: Filter) -> tuple[float, str, float, float]:
@@ -190,7 +194,8 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
               fault_at_s: float, particles: int, mode: str, noise_scale: float = 1.0,
               sensor_noise: str = "measured", moves_drop_null: bool | None = None,
               locate_min_s: float | None = None, locate_max_s: float | None = None,
-              replay_s: float | None = None, hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
+              replay_s: float | None = None, replay_cov_scale: float | None = None,
+              hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
               dead: Sequence[str] = (), speed_mps: float = V_MPS,
               redraw_from: str | None = None,
               kernel_delta: float | None = None) -> dict[str, Any]:
@@ -201,6 +206,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s, replay_s=replay_s,
+                                             replay_cov_scale=replay_cov_scale,
                                              redraw_from=redraw_from,
                                              kernel_delta=kernel_delta),
                            held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None,
@@ -243,7 +249,7 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
                 noise_scale: float = 1.0, sensor_noise: str = "measured",
                 moves_drop_null: bool | None = None, locate_min_s: float | None = None,
                 locate_max_s: float | None = None, replay_s: float | None = None,
-                hold_every_s: float | None = None,
+                replay_cov_scale: float | None = None, hold_every_s: float | None = None,
                 hold_s: float = 3.0, dead: Sequence[str] = (),
                 speed_mps: float = V_MPS, redraw_from: str | None = None,
                 kernel_delta: float | None = None) -> dict[str, Any]:
@@ -253,6 +259,7 @@ def nominal_row(sensors: int, seed: int, *, seconds: float, particles: int, mode
     est, found, filt = run(Y, service_filter(sensors, seed, particles, mode, sensor_noise,
                                              moves_drop_null, locate_min_s=locate_min_s,
                                              locate_max_s=locate_max_s, replay_s=replay_s,
+                                             replay_cov_scale=replay_cov_scale,
                                              redraw_from=redraw_from,
                                              kernel_delta=kernel_delta),
                            held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s),
@@ -362,6 +369,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--replay-s", type=float, default=None,
                     help="the fault bank's look-back, s (default: the bank's own; 0: the "
                          "location starts at the confirmation)")
+    ap.add_argument("--replay-cov-scale", type=float, default=None,
+                    help="the multiple of its steady covariance a replayed location starts "
+                         "from (default: the bank's own)")
     ap.add_argument("--kernel-delta", type=kernel_delta_arg, default=None,
                     help="the service's [estimator] kernel_delta (default: the service's)")
     args = ap.parse_args(argv)
@@ -375,6 +385,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                  f"phase), got {args.locate_max_s}")
     if args.replay_s is not None and not args.replay_s >= 0:
         ap.error(f"expected --replay-s >= 0 s, got {args.replay_s}")
+    if args.replay_cov_scale is not None and not args.replay_cov_scale >= 1:
+        ap.error(f"expected --replay-cov-scale >= 1, got {args.replay_cov_scale}")
     if not 0 < args.speed_mps <= 150:
         ap.error(f"expected 0 < --speed-mps <= 150 m/s, got {args.speed_mps}")
     if args.what in ("summary", "plot"):
@@ -395,6 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     locate_min_s=args.locate_min_s,
                                     locate_max_s=args.locate_max_s,
                                     replay_s=args.replay_s,
+                                  replay_cov_scale=args.replay_cov_scale,
                                     hold_every_s=args.hold_every_s, hold_s=args.hold_s,
                                     dead=args.dead, speed_mps=args.speed_mps,
                                     redraw_from=args.redraw_from,
@@ -408,6 +421,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   locate_min_s=args.locate_min_s,
                                   locate_max_s=args.locate_max_s,
                                   replay_s=args.replay_s,
+                                  replay_cov_scale=args.replay_cov_scale,
                                   hold_at_s=args.hold_at_s, hold_s=args.hold_s,
                                   dead=args.dead, speed_mps=args.speed_mps,
                                   redraw_from=args.redraw_from,

@@ -36,9 +36,13 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   8 s) would carry its error through the whole phase under steady gains, biasing the
   grid towards the value it came from. So each grid filter
   runs the exact Kalman recursion (:func:`gateway.estimator.kalman.kf_block`) from a
-  covariance ``locate_cov_scale`` times its own steady covariance, which lets it correct
-  that error within the phase. Their log-likelihood ratios to the reference are summed
-  for ``locate_s``, and the best grid value, if it beats the reference by ``h / 2``, is
+  covariance ``locate_cov_scale`` (100) times its own steady covariance, which lets it
+  correct that error within the phase; a replayed start, whose state was estimated
+  under the right value up to the look-back's snapshot spacing, uses
+  ``replay_cov_scale`` (10): the wider start spent the change's first evidence on
+  converging (since 2026-11-28: the 20 m/s first alerts a second earlier). Their
+  log-likelihood ratios to the reference are summed for ``locate_s``, and the best grid
+  value, if it beats the reference by ``h / 2``, is
   the :class:`Detection`; if it does not beat the reference at all, nothing changed:
   every filter restarts from the reference's state and the bank watches again. In
   between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
@@ -144,9 +148,13 @@ class FaultBankConfig:
     early stop's locations were biased, docs/estimator.md);
     ``locate_cov_scale``: the location grid's exact filters start from this multiple of
     their steady covariance (module docstring; measured in docs/estimator.md, "A fair
-    location"); ``replay_s``: the longest look-back (s) over which the location grid
-    replays from the likeliest change time (:mod:`gateway.estimator.lookback`; 0: the
-    grid starts at the confirmation, as before 2026-11-27); ``redraw_from``: how the
+    location"); ``replay_cov_scale``: the same multiple where they replay from the
+    likeliest change time, from a state estimated under the right value up to the
+    look-back's snapshot spacing (docs/estimator.md, "The replayed location starts
+    from 10 x its steady covariance"); ``replay_s``: the longest look-back (s) over
+    which the location grid replays from the likeliest change time
+    (:mod:`gateway.estimator.lookback`; 0: the grid starts at the confirmation, as
+    before 2026-11-27); ``redraw_from``: how the
     detected parameter is redrawn (:meth:`FaultBank.redraw`; "range": log-uniformly
     over the redraw range, as before 2026-11-27).
     """
@@ -162,6 +170,7 @@ class FaultBankConfig:
     locate_min_s: float = 1.0
     locate_max_s: float = 3.0
     locate_cov_scale: float = 100.0
+    replay_cov_scale: float = 10.0
     replay_s: float = 2.0
     redraw_from: str = "likelihood"
 
@@ -180,9 +189,10 @@ class FaultBankConfig:
         if not self.locate_max_s >= self.locate_s:
             raise EstimatorError(f"expected locate_max_s >= locate_s ({self.locate_s} s), "
                                  f"got {self.locate_max_s}")
-        if not self.locate_cov_scale >= 1.0:
-            raise EstimatorError(f"expected locate_cov_scale >= 1 (a multiple of the steady "
-                                 f"covariance), got {self.locate_cov_scale}")
+        for name in ("locate_cov_scale", "replay_cov_scale"):
+            if not getattr(self, name) >= 1.0:
+                raise EstimatorError(f"expected {name} >= 1 (a multiple of the steady "
+                                     f"covariance), got {getattr(self, name)}")
         for name in ("start_after_s", "after_hold_s", "max_rel_std", "hold_s", "confirm_s",
                      "locate_s", "locate_min_s", "replay_s"):
             if not getattr(self, name) >= 0:
@@ -560,7 +570,7 @@ class FaultBank:
             state = self._without_null(xs[None], ref0[None])[0]
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
-        self.P = self._start_cov(v0)
+        self.P = self._start_cov(v0, self.config.replay_cov_scale if starts else None)
         if not starts:
             return None
         Y, full = self.lookback.samples(n0)
@@ -618,16 +628,18 @@ class FaultBank:
                 best, best_sum = (n, xs, ref0), total
         return best
 
-    def _start_cov(self, v0: np.ndarray | None = None) -> np.ndarray:
-        """The location grid's starting covariances (lane layout): ``locate_cov_scale``
-        times each filter's steady updated covariance at its own theta (module
-        docstring), from the gains and null vectors ``v0`` (m, 16) of :meth:`_solve`
-        (None: solved here)."""
+    def _start_cov(self, v0: np.ndarray | None = None, scale: float | None = None
+                   ) -> np.ndarray:
+        """The location grid's starting covariances (lane layout): ``scale`` (None:
+        ``locate_cov_scale``) times each filter's steady updated covariance at its own
+        theta (module docstring), from the gains and null vectors ``v0`` (m, 16) of
+        :meth:`_solve` (None: solved here)."""
         assert self._gains is not None and self._model is not None
         _, null, H, r, _ = self._model
         if v0 is None:
             v0 = null(self.hypotheses()[:, :N_THETA])
-        P = steady_posterior(self._gains, v0, H, r, self.m) * self.config.locate_cov_scale
+        scale = self.config.locate_cov_scale if scale is None else scale
+        P = steady_posterior(self._gains, v0, H, r, self.m) * scale
         return to_lanes(P.reshape(self.m, NZ * NZ))
 
     def locate_grid(self, side: float | None = None) -> np.ndarray:

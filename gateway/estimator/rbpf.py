@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (1087): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines (1091): the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor, fault bank,
 the rejoin test after a lost frame and the dead-sensor rule are already separate
 modules.
@@ -1080,6 +1080,10 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
         # over the range
         bank.setdefault("replay_s", 0.0)
         bank.setdefault("redraw_from", "range")
+        # ... and before 2026-11-28 (fourth session), a replayed location started from the
+        # same multiple of its steady covariance as one from the confirmation
+        bank.setdefault("replay_cov_scale", bank.get("locate_cov_scale",
+                                                     FaultBankConfig.locate_cov_scale))
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
