@@ -397,3 +397,41 @@ def test_a_located_change_on_another_parameter_raises_nothing_here() -> None:
     p = AlertPolicy()
     ev = p.step(located(5.0, "csay_ns_per_m", 0.2, 0.13, 0.30))
     assert [(a.parameter, a.severity.name) for a in ev] == [("csay_ns_per_m", "ALARM")]
+
+
+def unresolved_run(policy: AlertPolicy, t0_s: float, t1_s: float, names: tuple[str, ...],
+                   **kw: float) -> list:
+    """:func:`run` with every estimate naming ``names`` unresolved."""
+    events = []
+    for k in range(round(t0_s * FS_HZ), round(t1_s * FS_HZ)):
+        events += policy.step(dataclasses.replace(est(k / FS_HZ, **kw), unresolved=names))
+    return events
+
+
+def test_an_unresolved_parameter_is_neither_raised_nor_cleared() -> None:
+    """With the body node out of a 3-sensor set Csy is unresolved: its mean is what the
+    filters knew before, so a Csy at 0.2 of nominal with a narrow sigma raises nothing
+    while Csay, resolved, raises its ALARM beside it. Once Csy is resolved again its
+    value is judged with fresh hold timers. An ALARM raised before stays while Csy is
+    unresolved, even where the stale mean is back at nominal, and clears once a
+    resolved estimate says so."""
+    p = AlertPolicy(HOLD_ONLY)
+    csy = ("csy_ns_per_m",)
+    ev = unresolved_run(p, 0, 20, csy, csy=0.2, csay=0.2)
+    assert {(e.parameter, e.severity.name) for e in ev} == {("csay_ns_per_m", "ALARM")}
+    ev = run(p, 20, 30, csy=0.2, csay=0.2)
+    assert [(e.parameter, e.severity.name, e.state.name) for e in ev] == [
+        ("csy_ns_per_m", "ALARM", "RAISED")]
+    assert ev[0].t_s >= 20.0 + p.config.raise_hold_s - 1e-9
+    assert unresolved_run(p, 30, 60, csy, csy=1.0, csay=0.2) == []
+    ev = run(p, 60, 80, csy=1.0, csay=0.2)
+    assert [(e.parameter, e.state.name) for e in ev] == [("csy_ns_per_m", "CLEARED")]
+
+
+def test_a_located_change_of_an_unresolved_parameter_still_raises() -> None:
+    """The bank's location is evidence from the data themselves: a Csy change located
+    well below the ALARM threshold raises though the estimate calls Csy unresolved."""
+    p = AlertPolicy()
+    e = dataclasses.replace(located(5.0, "csy_ns_per_m", 0.2, 0.1, 0.3, csy=0.2),
+                            unresolved=("csy_ns_per_m",))
+    assert [a.severity.name for a in p.step(e)] == ["ALARM"]

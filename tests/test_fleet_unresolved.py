@@ -72,3 +72,26 @@ def test_runs_with_the_body_node_dead_stay_out_of_the_csy_trend(tmp_path: Path) 
     said = {r["vehicle"]: r["unresolved_runs"] for r in rank}
     assert said == {runs[0].vehicle: "Csy 2", other: ""}
     assert np.isfinite([r.rel[0] for r in rows]).all()     # kept for the plot
+
+
+def test_the_fleet_view_does_not_judge_an_unresolved_parameter() -> None:
+    """The report's alert events (:func:`gateway.fleet.runs.unit_alerts`) follow the
+    vehicle's policy: a run whose Csy sat at 0.2 of nominal with a narrow sigma while the
+    sensors could not resolve it raises nothing on Csy; the next run, resolved, raises
+    the ALARM."""
+    from gateway.fleet.runs import NOMINAL, PARAMS, RunEstimates, unit_alerts
+
+    t = np.arange(0.0, 30.0, 0.1)
+    nominal = np.array([NOMINAL[p] for p in PARAMS])
+    mean = np.repeat((nominal * [0.2, 1.0, 1.0])[None], len(t), 0)
+    std = 0.01 * np.repeat(nominal[None], len(t), 0)
+    weak = np.zeros((len(t), 3), bool)
+    weak[:, 0] = True
+    blind = RunEstimates(t, mean, std, np.full(len(t), 500.0), (), weak)
+    seen = RunEstimates(t + 100.0, mean, std, np.full(len(t), 500.0), (),
+                        np.zeros_like(weak))
+    assert unit_alerts([blind]) == []
+    events = unit_alerts([blind, seen])
+    assert [(e["parameter"], e["severity"], e["state"]) for e in events] == [
+        ("csy_ns_per_m", "alarm", "raised")], events
+    assert float(events[0]["t_s"]) >= 100.0           # from the resolved run

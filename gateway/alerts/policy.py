@@ -287,7 +287,10 @@ class AlertPolicy:
     # -- judging -------------------------------------------------------------------
     def step(self, estimate: Estimate) -> list[Alert]:
         """Judge one estimate; returns the events it causes (usually none). A provisional
-        estimate (the estimator still tests its model) is not judged: timers restart."""
+        estimate (the estimator still tests its model) is not judged: timers restart; nor
+        is a parameter the estimate calls unresolved (``Estimate.unresolved``: the
+        sensors in use cannot resolve it), as behind a closed gate, though the fault
+        bank's located change of it still acts."""
         events: list[Alert] = []
         if estimate.provisional:
             for tr in self._tracks.values():
@@ -302,6 +305,11 @@ class AlertPolicy:
             loc = estimate.located
             if loc is not None and loc.parameter == name and self._config.act_on_located:
                 events += self._located(name, pp, self._tracks[name], estimate.t_s, loc)
+            if name in estimate.unresolved:
+                # the sensors in use cannot resolve it: its mean is what the filters knew
+                # before, so it is not judged (a closed gate); a located change is data
+                self._tracks[name].reset_timers()
+                continue
             events += self._judge(name, pp, self._tracks[name], estimate.t_s,
                                   float(estimate.mean[i]), float(estimate.std[i]))
         return events

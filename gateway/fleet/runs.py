@@ -181,12 +181,15 @@ def unit_alerts(runs: list[RunEstimates]) -> list[dict[str, object]]:
     """The gateway's alert policy (default thresholds and hold times) over one unit's runs
     in calendar order, one policy for all of them, as on a vehicle whose policy state
     survives between runs: an alarm raised in one run stays raised in the next until an
-    estimate clears it. Events as ``gateway replay`` reports them."""
+    estimate clears it; a parameter the sensors in use could not resolve is not judged,
+    as on the vehicle. Events as ``gateway replay`` reports them."""
     policy = AlertPolicy()
     out: list[dict[str, object]] = []
     for r in runs:
         for k in range(len(r.t_s)):
             est = Estimate(float(r.t_s[k]), tuple(map(float, r.mean[k])),
-                           tuple(map(float, r.std[k])), float(r.ess[k]))
+                           tuple(map(float, r.std[k])), float(r.ess[k]),
+                           unresolved=tuple(p for j, p in enumerate(PARAMS)
+                                            if r.unresolved[k, j]))
             out.extend(alert_json(a) for a in policy.step(est))
     return out
