@@ -87,8 +87,10 @@ class RBPFConfig:
     ``fast_warmup_s``: in fast mode, the exact recursion runs this long after every
     filter start (the prior's large P converges the states quickly; the steady gains
     alone would take the slow mode's 8 s time constant); 0.5 s is measured to give the
-    same accuracy at about twice the whole-run speed, but the campaigns behind the
-    product's figures use 2 s (docs/estimator.md "Start of every filter");
+    same accuracy at 1.1-1.4 times the whole-run speed (the start's moves then pay DARE
+    solves instead; 3.44 -> 3.90 on 2026-11-28's Intel host, 3.5-3.9 -> 4.7-5.2 on its
+    AMD host), but the campaigns behind the product's figures use 2 s
+    (docs/estimator.md "Start of every filter");
     ``moves_drop_null``: a moved particle keeps its ancestor's state less the component
     along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
     on by default since 2026-11-25 (docs/estimator.md "Calibration of the stated sigma": it
