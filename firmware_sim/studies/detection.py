@@ -407,7 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     locate_min_s=args.locate_min_s,
                                     locate_max_s=args.locate_max_s,
                                     replay_s=args.replay_s,
-                                  replay_cov_scale=args.replay_cov_scale,
+                                    replay_cov_scale=args.replay_cov_scale,
                                     hold_every_s=args.hold_every_s, hold_s=args.hold_s,
                                     dead=args.dead, speed_mps=args.speed_mps,
                                     redraw_from=args.redraw_from,

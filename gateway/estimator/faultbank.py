@@ -40,10 +40,10 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   correct that error within the phase; a replayed start, whose state was estimated
   under the right value up to the look-back's snapshot spacing, uses
   ``replay_cov_scale`` (10): the wider start spent the change's first evidence on
-  converging (since 2026-11-28: the 20 m/s first alerts a second earlier). Their
+  converging (since 2026-11-28: at 20 m/s the first alerts' median 0.8 s earlier). Their
   log-likelihood ratios to the reference are summed for ``locate_s``, and the best grid
-  value, if it beats the reference by ``h / 2``, is
-  the :class:`Detection`; if it does not beat the reference at all, nothing changed:
+  value, if it beats the reference by ``h / 2``, is the :class:`Detection`; if it does
+  not beat the reference at all, nothing changed:
   every filter restarts from the reference's state and the bank watches again. In
   between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
   later look costs no more false detections). Optionally (``locate_min_s`` below
@@ -154,9 +154,9 @@ class FaultBankConfig:
     from 10 x its steady covariance"); ``replay_s``: the longest look-back (s) over
     which the location grid replays from the likeliest change time
     (:mod:`gateway.estimator.lookback`; 0: the grid starts at the confirmation, as
-    before 2026-11-27); ``redraw_from``: how the
-    detected parameter is redrawn (:meth:`FaultBank.redraw`; "range": log-uniformly
-    over the redraw range, as before 2026-11-27).
+    before 2026-11-27); ``redraw_from``: how the detected parameter is redrawn
+    (:meth:`FaultBank.redraw`; "range": log-uniformly over the redraw range, as before
+    2026-11-27).
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
