@@ -393,6 +393,21 @@ def test_a_located_change_is_judged_on_its_likelihood_interval_not_its_redraw_ra
         assert f"likely {like[0]:.3f}-{like[1]:.3f}" in ev[0].message
 
 
+def test_a_refined_location_raises_once_its_interval_has_passed_the_threshold() -> None:
+    """The fault bank's refinement publishes the same change again, later, with a
+    narrower interval (a new ``Located.t_s``): the first straddles the ADVISORY threshold
+    (0.75) and raises nothing; the refined one lies below it and raises with its own
+    estimate; a third, narrower still but past no further threshold, raises nothing."""
+    p = AlertPolicy()
+    assert run(p, 0, 10) == []
+    ev = p.step(located(10.0, "csy_ns_per_m", 0.49, 0.25, 0.85, csy=0.8))
+    assert ev == []
+    ev = p.step(located(10.25, "csy_ns_per_m", 0.5, 0.36, 0.70, csy=0.78))
+    assert brief(ev) == [(10.25, "csy_ns_per_m", "ADVISORY", "RAISED")]
+    assert "likely 0.360-0.700" in ev[0].message
+    assert p.step(located(10.5, "csy_ns_per_m", 0.5, 0.40, 0.66, csy=0.75)) == []
+
+
 def test_a_located_change_on_another_parameter_raises_nothing_here() -> None:
     p = AlertPolicy()
     ev = p.step(located(5.0, "csay_ns_per_m", 0.2, 0.13, 0.30))

@@ -215,7 +215,7 @@ def test_a_fault_is_found_with_the_wheelset_node_dead(parameter: int, factor: fl
     from firmware_sim.studies.detection import fault_row
 
     row = fault_row(parameter, factor, 5, seed, seconds=14.0, fault_at_s=8.0,
-                    particles=1000, mode="fast", dead=("acc_w1", "acc_w2"))
+                    dead=("acc_w1", "acc_w2"))
     assert row["detect_s"] is not None and row["detect_s"] <= 3.0, row
     assert row["wrong"] == 0 and row["before"] == 0 and row["alerts_healthy"] == 0, row
     assert row["track_s"] is not None and row["track_s"] <= 5.0, row
@@ -227,8 +227,7 @@ def test_a_healthy_vehicle_with_a_dead_node_raises_nothing() -> None:
     and the truth within 3σ at the end."""
     from firmware_sim.studies.detection import nominal_row
 
-    row = nominal_row(5, 37, seconds=60.0, particles=1000, mode="fast",
-                      dead=("acc_w1", "acc_w2"))
+    row = nominal_row(5, 37, seconds=60.0, dead=("acc_w1", "acc_w2"))
     assert row["detections"] == 0 and row["alerts"] == 0 and row["monitor_alarms"] == 0, row
     assert max(abs(z) for z in row["final_z"]) < 3.0, row
 

@@ -61,7 +61,7 @@ def test_a_failed_damper_is_alerted_and_tracked_at_the_speed_limits(
     none on a healthy one, and the estimate within 15 % of the new value from +10 s at
     the latest (issue 15's worst-case targets)."""
     row = fault_row(parameter, factor, 3, seed, seconds=18.0, fault_at_s=8.0,
-                    particles=1000, mode="fast", speed_mps=speed_mps)
+                    speed_mps=speed_mps)
     assert row["speed_mps"] == speed_mps
     assert row["detect_s"] is not None, row
     assert row["alert_s"] is not None and row["alert_s"] <= 5.0, row
@@ -76,8 +76,7 @@ def test_a_healthy_vehicle_raises_nothing_at_the_speed_limits(speed_mps: float,
                                                               seed: int) -> None:
     """60 s of nominal data, 3 sensors: no detection, no alert, no monitor alarm, and the
     estimate ends within 3 sigma of the truth."""
-    row = nominal_row(3, seed, seconds=60.0, particles=1000, mode="fast",
-                      speed_mps=speed_mps)
+    row = nominal_row(3, seed, seconds=60.0, speed_mps=speed_mps)
     assert row["detections"] == 0 and row["alerts"] == 0, row
     assert row["monitor_alarms"] == 0, row
     assert max(abs(z) for z in row["final_z"]) < 3.0, row

@@ -137,12 +137,12 @@ def test_a_start_that_locked_in_without_the_ramp_does_not() -> None:
     of the truth on every parameter (docs/estimator.md "Calibration of the stated
     sigma")."""
     from firmware_sim.studies.calibration import record
-    from firmware_sim.studies.detection import run, service_filter
+    from firmware_sim.studies.filtering import run, service_filter
     from gateway.model.vehicle import THETA_SEC42
 
     truth = THETA_SEC42.as_array()
     Y = record(truth, 3, 3138, 20.0)[:5000]
-    filt = service_filter(3, 138, 1000, "fast")
+    filt = service_filter(3, 138)
     assert filt.config.start_ramp_s == 1.0
     est = run(Y, filt, every=500)[0][-1]
     mean, std = np.array(est.mean[:3]), np.array(est.std[:3])
@@ -186,7 +186,7 @@ def test_the_start_ramp_lasts_a_stretch_of_track_at_the_first_datas_speed(
 
 def test_the_service_ramps_over_42_5_m_of_track() -> None:
     """The service's filter: 1 s at the paper's 42.5 m/s, and 42.5 m of track below it."""
-    from firmware_sim.studies.detection import service_filter
+    from firmware_sim.studies.filtering import FilterOptions, service_filter
 
-    cfg = service_filter(3, 1, 16, "fast").config
+    cfg = service_filter(3, 1, FilterOptions(particles=16)).config
     assert (cfg.start_ramp_s, cfg.start_ramp_m) == (1.0, 42.5)

@@ -3,7 +3,7 @@ compare with the maximum-likelihood sigma on the same record?
 
 ``python -m firmware_sim.studies.calibration paper --seeds 1 ... 20`` runs the paper's
 Sec. 4.2 scenario (theta = 20 kNs/m, 3000 kNs/m, 0.15; 42.5 m/s), 3 and 5 sensors, 20 s,
-through the service's filter (:func:`firmware_sim.studies.detection.service_filter`: fast
+through the service's filter (:func:`firmware_sim.studies.filtering.service_filter`: fast
 mode, m = 1000, drift, monitor and fault bank) and, on the same record's first 5 s and
 all 20 s, through the prediction-error maximum likelihood with its observed-information
 sigma (:class:`gateway.identify.pipeline.PredictionErrorIdentifier`). One JSON line per
@@ -51,13 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection import (
-    FS_HZ,
-    V_MPS,
-    kernel_delta_arg,
-    run,
-    service_filter,
-)
+from firmware_sim.studies.arguments import kernel_delta_arg
+from firmware_sim.studies.filtering import FS_HZ, V_MPS, FilterOptions, run, service_filter
 from firmware_sim.studies.holds import holds
 from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import PAPER_DELTA, RBPFConfig
@@ -119,9 +114,9 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
     theta = PAPER_THETA[theta_name].as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps)
-    filt = service_filter(sensors, seed, particles, mode, moves_drop_null=moves_drop_null,
-                          start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m,
-                          kernel_delta=kernel_delta)
+    filt = service_filter(sensors, seed, FilterOptions(
+        particles=particles, mode=mode, moves_drop_null=moves_drop_null,
+        start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m, kernel_delta=kernel_delta))
     held = None if hold is None else holds(len(Y), FS_HZ, [hold[0]], hold[1])
     est, found, _ = run(Y, filt, held=held, speed_mps=speed_mps)
     out = []

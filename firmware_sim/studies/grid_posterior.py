@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from firmware_sim.studies.calibration import SEED_OFFSET, record
-from firmware_sim.studies.detection import FS_HZ, V_MPS, run
+from firmware_sim.studies.filtering import FS_HZ, V_MPS, run
 from gateway.estimator.rbpf import RBPF
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42

@@ -4,7 +4,7 @@ The stated sigma is the particle cloud's spread: the posterior's width as the fi
 sees it. It does not contain the filter's own Monte Carlo error, the spread of its
 estimate between runs on the same data with other random draws. This study measures
 that error: it runs the service's filter
-(:func:`firmware_sim.studies.detection.service_filter`) on one record of the
+(:func:`firmware_sim.studies.filtering.service_filter`) on one record of the
 calibration study's paper scenario (:func:`firmware_sim.studies.calibration.record`,
 data seed ``3000 + seed``) with ``--filter-seeds`` seeds, and weighs the same record on
 the exact grid posterior (:func:`firmware_sim.studies.grid_posterior.grid_posterior`,
@@ -33,8 +33,9 @@ from typing import Any
 
 import numpy as np
 
+from firmware_sim.studies.arguments import kernel_delta_arg
 from firmware_sim.studies.calibration import SEED_OFFSET, record
-from firmware_sim.studies.detection import V_MPS, kernel_delta_arg, run, service_filter
+from firmware_sim.studies.filtering import V_MPS, FilterOptions, run, service_filter
 from firmware_sim.studies.grid_posterior import grid_posterior, half_log_for
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42
 
@@ -61,8 +62,8 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
     Y = record(theta, sensors, SEED_OFFSET["paper"] + seed, at_s, speed_mps=speed_mps)
     ends = []
     for k in range(1, filter_seeds + 1):
-        filt = service_filter(sensors, 1000 * seed + k, particles, "fast",
-                              kernel_delta=delta)
+        filt = service_filter(sensors, 1000 * seed + k,
+                              FilterOptions(particles=particles, kernel_delta=delta))
         est, _, _ = run(Y, filt, speed_mps=speed_mps)
         ends.append((np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])))
         ran = filt.config.delta                     # 0 (auto) resolved for this m

@@ -33,7 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.detection import FS_HZ, V_MPS, fault_case, fault_data
+from firmware_sim.studies.arguments import fault_case
+from firmware_sim.studies.detection import fault_data
+from firmware_sim.studies.filtering import FS_HZ, V_MPS
 from firmware_sim.truth import SENSOR_NOISE_VAR
 from gateway.estimator.faultbank import FaultBankConfig
 from gateway.model.vehicle import (

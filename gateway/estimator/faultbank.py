@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (about 850): the watch, confirm and locate phases share one state vector
+Over 400 lines (about 960): the watch, confirm, locate and refine phases share one state vector
 and one set of filters; splitting them would pass that state around. What the location
 replays is kept by :mod:`gateway.estimator.lookback`; the redraw's densities are
 :mod:`gateway.estimator.particles`.
@@ -8,7 +8,7 @@ replays is kept by :mod:`gateway.estimator.lookback`; the redraw's densities are
 The particle cloud learns a parameter change only as fast as its roughening lets it
 crawl, and the innovation monitor (:mod:`gateway.estimator.monitor`) tests the cloud's
 average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 15: about
-1,000 nats/s for Csy 40 -> 10 kNs/m). This bank reads them directly, in three phases:
+1,000 nats/s for Csy 40 -> 10 kNs/m). This bank reads them directly, in four phases:
 
 - *Watch.* Beside the cloud run ``1 + 3 * len(factors)`` steady-gain Kalman filters
   (:mod:`gateway.estimator.steady`): a *reference* at the cloud's posterior mean
@@ -57,6 +57,12 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   follow the grid's summed likelihood, so the evidence since the change carries into the
   cloud instead of being gathered again from a flat start over the redraw range
   (:data:`DEFENSIVE_SHARE` of them still spread over that range).
+- *Refine* (since 2026-11-28, ``refine_s``). The grid sums on after the detection, and
+  every :data:`REFINE_EVERY` samples its likelihood interval is looked at again; where
+  it or the best value moved, that is the latest located change
+  (:meth:`FaultBank.located_before`), which the alert policy acts on like the
+  detection's: an interval that straddled a threshold at the detection raises once the
+  data have narrowed it past. Then the bank watches again about the best value.
 
 Life cycle: the bank is idle until the cloud has ``start_after_s`` of updated data
 since its filters started and every parameter's posterior std is within
@@ -156,7 +162,12 @@ class FaultBankConfig:
     (:mod:`gateway.estimator.lookback`; 0: the grid starts at the confirmation, as
     before 2026-11-27); ``redraw_from``: how the detected parameter is redrawn
     (:meth:`FaultBank.redraw`; "range": log-uniformly over the redraw range, as before
-    2026-11-27).
+    2026-11-27); ``refine_s``: data time (s) the location grid sums on after a
+    detection, its interval looked at every :data:`REFINE_EVERY` samples (module
+    docstring; 0: the bank watches again at once, as before 2026-11-28's fifth session;
+    it counts towards ``hold_s``, so the bank is back to watching ``max(hold_s,
+    refine_s)`` after a detection; docs/estimator.md "The location refines its interval
+    after a detection").
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -173,6 +184,7 @@ class FaultBankConfig:
     replay_cov_scale: float = 10.0
     replay_s: float = 2.0
     redraw_from: str = "likelihood"
+    refine_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.redraw_from not in REDRAWS:
@@ -194,7 +206,7 @@ class FaultBankConfig:
                 raise EstimatorError(f"expected {name} >= 1 (a multiple of the steady "
                                      f"covariance), got {getattr(self, name)}")
         for name in ("start_after_s", "after_hold_s", "max_rel_std", "hold_s", "confirm_s",
-                     "locate_s", "locate_min_s", "replay_s"):
+                     "locate_s", "locate_min_s", "replay_s", "refine_s"):
             if not getattr(self, name) >= 0:
                 raise EstimatorError(f"expected {name} >= 0, got {getattr(self, name)}")
 
@@ -224,9 +236,15 @@ ratio is -inf from then on, so no value is needed."""
 
 # layout of the bank's scalar vector
 _ACTIVE, _HOLD, _LAST_T, _LAST_P, _LAST_F, _COUNT, _PEND, _MODE, _LOC_P, _LOC_SIDE, _LEFT, \
-    _CONF_T, _LAST_V, _LIKE_LO, _LIKE_HI = range(15)
+    _CONF_T, _LAST_V, _LIKE_LO, _LIKE_HI, _REFINE, _REF_T, _REF_V, _PREV_T, _PREV_V, \
+    _PREV_LO, _PREV_HI = range(22)
 _VEC_BEFORE_LIKE = 13
 """Length of the scalar vector in checkpoints from before the likelihood interval."""
+_VEC_LEN = 22
+"""Length of the scalar vector; shorter ones (before the refinement, 15) are extended
+(not refining, the last detection's own interval published)."""
+REFINE_EVERY = 5 * SNAP_EVERY
+"""Samples between the refinement's looks at its likelihood interval (250 ms at 1 kHz)."""
 _WATCH, _LOCATE = 0.0, 1.0
 
 
@@ -247,7 +265,8 @@ class FaultBank:
         self.g = np.zeros(self.n_hyp)              # CUSUMs, nats
         self.x = np.zeros((self._nch, NZ * LANES))  # filter states, lane layout
         self.P = np.zeros((self._nch, NZ * NZ * LANES))  # covariances while locating
-        self.vec = np.zeros(15)                    # active, hold left, last detection
+        self.vec = np.zeros(_VEC_LEN)              # active, hold left, last detection
+        self.vec[_PREV_T] = np.nan                 # no earlier published interval
         self._gains: SteadyGains | None = None
         self._phi = np.empty((self._nch, NZ * NZ * LANES))
         self._qd = np.empty_like(self._phi)
@@ -268,10 +287,17 @@ class FaultBank:
         return self.active and self.vec[_MODE] == _LOCATE
 
     @property
+    def refining(self) -> bool:
+        """After a detection, the location grid still sums (``refine_s``)."""
+        return self.locating and self.vec[_REFINE] > 0
+
+    @property
     def busy(self) -> bool:
         """A crossing is being confirmed or a change located: the innovation monitor's
-        alarm (which restarts every filter) waits for this bank's answer."""
-        return self.active and (self.vec[_MODE] == _LOCATE or self.vec[_PEND] > 0)
+        alarm (which restarts every filter) waits for this bank's answer (not for a
+        refinement: the change is decided)."""
+        return self.active and ((self.vec[_MODE] == _LOCATE and not self.refining)
+                                or self.vec[_PEND] > 0)
 
     @property
     def count(self) -> int:
@@ -289,7 +315,7 @@ class FaultBank:
         has no ``bank_P``: if it was locating, the grid's covariances start again there.
         One from before the likelihood interval gives its last detection the redraw range
         as its interval (the alert rule it ran with)."""
-        arrays = self._with_likely(arrays)
+        arrays = self._upgraded(arrays)
         for key, attr in (("bank_ref", "ref"), ("bank_g", "g"), ("bank_x", "x"),
                           ("bank_vec", "vec"), ("bank_P", "P")):
             if key in arrays:
@@ -303,16 +329,19 @@ class FaultBank:
             if self.locating and "bank_P" not in arrays:
                 self.P = self._start_cov(v0)
 
-    def _with_likely(self, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """``arrays`` with a scalar vector from before the likelihood interval extended by
-        its last detection's redraw range as that interval (zeros without a detection)."""
+    def _upgraded(self, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``arrays`` with a scalar vector from an older checkpoint extended: one from
+        before the likelihood interval gets its last detection's redraw range as that
+        interval (zeros without a detection), and one from before the refinement is not
+        refining."""
         vec = arrays.get("bank_vec")
-        if vec is None or vec.shape != (_VEC_BEFORE_LIKE,):
+        if vec is None or vec.ndim != 1 or len(vec) >= _VEC_LEN:
             return arrays
         ext = np.zeros_like(self.vec)
-        ext[:_VEC_BEFORE_LIKE] = vec
-        if vec[_COUNT] > 0:
+        ext[:len(vec)] = vec
+        if len(vec) == _VEC_BEFORE_LIKE and vec[_COUNT] > 0:
             ext[_LIKE_LO], ext[_LIKE_HI] = self._range_of(vec)
+        ext[_REF_T], ext[_REF_V], ext[_PREV_T] = ext[_LAST_T], ext[_LAST_V], np.nan
         return {**arrays, "bank_vec": ext}
 
     def snapshot(self) -> tuple[tuple[np.ndarray, ...], Lookback]:
@@ -339,6 +368,7 @@ class FaultBank:
         self.vec[_ACTIVE] = 0.0
         self.vec[_PEND] = 0.0
         self.vec[_MODE] = _WATCH
+        self.vec[_REFINE] = 0.0
         self.g[:] = 0.0
 
     def start(self, theta_ref: np.ndarray, state: np.ndarray) -> None:
@@ -347,6 +377,7 @@ class FaultBank:
         (the filters run at other thetas); the CUSUMs hold for ``hold_s``."""
         self.vec[_ACTIVE] = 1.0
         self.vec[_MODE] = _WATCH
+        self.vec[_REFINE] = 0.0
         self.ref = np.array(theta_ref, dtype=float).reshape(self.n_params)
         x = self._without_null(np.asarray(state, dtype=float)[None], self.ref[None])
         self.x[:] = to_lanes(np.repeat(x, self.m, 0))
@@ -354,10 +385,11 @@ class FaultBank:
         self._solve()
         self.lookback.reset(x[0], self.ref)
 
-    def _hold(self) -> None:
+    def _hold(self, held_s: float = 0.0) -> None:
+        """The CUSUMs at 0, and held there for ``hold_s`` less ``held_s``."""
         self.g[:] = 0.0
         self.vec[_PEND] = 0.0
-        self.vec[_HOLD] = round(self.config.hold_s * self.fs_hz)
+        self.vec[_HOLD] = round(max(0.0, self.config.hold_s - held_s) * self.fs_hz)
 
     def hypotheses(self) -> np.ndarray:
         """theta of every filter (m, d): the reference, then parameter-major hypotheses
@@ -508,6 +540,9 @@ class FaultBank:
         """The location phase over up to the samples it has left: the exact recursion
         (module docstring), the log-likelihood ratios summed; the detection (or None)
         at its end."""
+        if self.vec[_REFINE] > 0:
+            self._refine_part(Y, full, t0_s, dt_s)
+            return None
         left = int(self.vec[_LEFT])
         n = min(len(Y), left)
         Y, full = Y[:n], full[:n]
@@ -712,15 +747,71 @@ class FaultBank:
                         step=float(grid[1] / grid[0]), grid=grid, llr=self.g.copy())
         self.vec[_LAST_T], self.vec[_LAST_P], self.vec[_LAST_F] = t_s, p, det.factor
         self.vec[_LAST_V] = det.factor * det.reference
-        self.vec[_LIKE_LO], self.vec[_LIKE_HI] = self.likely_range(det)
         self.vec[_COUNT] += 1
-        self.vec[_MODE] = _WATCH
+        self._publish(t_s, self.vec[_LAST_V], self.likely_range(det))
+        if self.config.refine_s > 0:
+            self.vec[_REFINE] = self._locate_samples(self.config.refine_s)
+            return det
         # the bank restarts around the located value; the estimator refreshes theta_ref
-        self.x[:] = to_lanes(np.repeat(det.state[None], self.m, 0))
-        self._hold()
-        self._solve()
-        self.lookback.restart(det.state, self.ref)
+        self._watch_again(det.state)
         return det
+
+    def _watch_again(self, state: np.ndarray, held_s: float = 0.0) -> None:
+        """Back to watching, every filter in ``state`` (16,), the CUSUMs held for what
+        is left of ``hold_s`` after ``held_s`` (s) since the detection."""
+        self.vec[_MODE] = _WATCH
+        self.vec[_REFINE] = 0.0
+        self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
+        self._hold(held_s)
+        self._solve()
+        self.lookback.restart(state, self.ref)
+
+    def _refine_part(self, Y: np.ndarray, full: np.ndarray, t0_s: float, dt_s: float
+                     ) -> None:
+        """The refinement over up to the samples it has left: the location grid sums on
+        (the exact recursion), and every :data:`REFINE_EVERY` samples its likelihood
+        interval is published again where it changed (:meth:`_refined`); at its end the
+        bank watches again about the best value."""
+        left = int(self.vec[_REFINE])
+        n = min(len(Y), left)
+        rows = _running(self.g, self._grid_ratios(self._step(Y[:n], full[:n]), full[:n]))
+        done = self._locate_samples(self.config.refine_s) - left
+        for i in np.flatnonzero((done + 1 + np.arange(n)) % REFINE_EVERY == 0):
+            self._refined(rows[i], t0_s + i * dt_s)
+        if n:
+            self.g = rows[-1].copy()
+        self.vec[_REFINE] = left - n
+        self._part = n
+        if left - n <= 0:
+            best = int(np.argmax(self.g))
+            state = self._state_of(1 + best)
+            p = int(self.vec[_LOC_P])
+            if np.isfinite(self.g[best]):
+                self.ref[p] *= self.locate_grid()[best]
+            # the hold after a detection lets the redrawn cloud settle: the refinement's
+            # time counts towards it, so the watch is off no longer than without one
+            self._watch_again(state, held_s=self.config.refine_s)
+
+    def _refined(self, llr: np.ndarray, t_s: float) -> None:
+        """A look at the refinement's sums ``llr`` (J,) at data time ``t_s``: where the
+        likelihood interval or the best value moved, they are the latest located change
+        (:meth:`located_before`; the alert policy acts on each once)."""
+        if not np.isfinite(llr.max()):
+            return
+        grid, p = self.locate_grid(), int(self.vec[_LOC_P])
+        lo, hi = self._likely(grid, float(self.ref[p]), llr)
+        value = float(grid[int(np.argmax(llr))] * self.ref[p])
+        if (lo, hi, value) != (self.vec[_LIKE_LO], self.vec[_LIKE_HI], self.vec[_REF_V]):
+            self._publish(t_s, value, (lo, hi))
+
+    def _publish(self, t_s: float, value: float, like: tuple[float, float]) -> None:
+        """The latest located change is ``value`` with interval ``like`` from data time
+        ``t_s``; the one before it stays readable (:meth:`located_before`)."""
+        v = self.vec
+        v[_PREV_T], v[_PREV_V], v[_PREV_LO], v[_PREV_HI] = (v[_REF_T], v[_REF_V],
+                                                           v[_LIKE_LO], v[_LIKE_HI])
+        v[_REF_T], v[_REF_V] = t_s, value
+        v[_LIKE_LO], v[_LIKE_HI] = like
 
     def _decision(self, g_path: np.ndarray) -> int | None:
         """The row of ``g_path`` (k, J) at which a detection is decided, or None.
@@ -813,12 +904,18 @@ class FaultBank:
         value outside is 4 sigma or more from the best, and the alert policy raises at
         once only on a threshold this whole interval is past (docs/alerts.md, "Located
         changes")."""
-        values = det.grid * det.reference
-        inside = np.nonzero(det.llr >= det.llr.max() - LIKELY_NATS)[0]
+        return self._likely(det.grid, det.reference, det.llr)
+
+    @staticmethod
+    def _likely(grid: np.ndarray, reference: float, llr: np.ndarray) -> tuple[float, float]:
+        """:meth:`likely_range` of a grid of factors ``grid`` (J,) about ``reference``
+        with summed log-likelihood ratios ``llr`` (J,)."""
+        values = grid * reference
+        inside = np.nonzero(llr >= llr.max() - LIKELY_NATS)[0]
         i0, i1 = int(inside[0]), int(inside[-1])
-        drop = det.grid[-1] < 1.0
-        below = det.reference if not drop else 0.0
-        above = det.reference if drop else np.inf
+        drop = grid[-1] < 1.0
+        below = reference if not drop else 0.0
+        above = reference if drop else np.inf
         return (float(values[i0 - 1]) if i0 > 0 else below,
                 float(values[i1 + 1]) if i1 + 1 < len(values) else above)
 
@@ -828,6 +925,22 @@ class FaultBank:
         if self.count == 0:
             return None
         return float(self.vec[_LIKE_LO]), float(self.vec[_LIKE_HI])
+
+    def located_before(self, t_s: float) -> tuple[float, float, float, float] | None:
+        """(data time, value, likely lo, likely hi; in the parameter's unit) of the latest
+        located change published before data time ``t_s``: the detection's, or a look of
+        its refinement that moved its interval; None before any. The one before the
+        latest counts where the latest came at ``t_s`` or later: an estimate is
+        summarised before the bank takes its own sample, and a block's last sample may
+        be a look."""
+        v = self.vec
+        if self.count == 0:
+            return None
+        if v[_REF_T] < t_s:
+            return float(v[_REF_T]), float(v[_REF_V]), float(v[_LIKE_LO]), float(v[_LIKE_HI])
+        if v[_PREV_T] < t_s:
+            return float(v[_PREV_T]), float(v[_PREV_V]), float(v[_PREV_LO]), float(v[_PREV_HI])
+        return None
 
     def last(self) -> tuple[float, int, float, float] | None:
         """(data time, parameter index, located value, time the crossing was confirmed)

@@ -1004,14 +1004,16 @@ class RBPF:
         of data after it (a function of the state: the worker may drop estimates between
         outputs, and a restart repeats none); None otherwise."""
         last = None if self._bank is None else self._bank.last()
-        if last is None or not 0.0 <= t_s - last[0] <= LOCATED_FOR_S:
+        located = None if self._bank is None else self._bank.located_before(t_s)
+        if last is None or located is None or not t_s - located[0] <= LOCATED_FOR_S:
             return None
         assert self._bank is not None
-        rng, like = self._bank.last_range(), self._bank.last_likely()
-        assert rng is not None and like is not None
-        t_det_s, p, value, _ = last
+        rng = self._bank.last_range()
+        assert rng is not None
+        _, p, _, _ = last
+        t_loc_s, value, *like = located
         nominal = float(self.config.nominal_array[p])
-        return Located(t_s=t_det_s, parameter=self.config.names[p], rel=value / nominal,
+        return Located(t_s=t_loc_s, parameter=self.config.names[p], rel=value / nominal,
                        rel_lo=rng[0] / nominal, rel_hi=rng[1] / nominal,
                        like_lo=like[0] / nominal, like_hi=like[1] / nominal)
 
@@ -1084,6 +1086,8 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
         # same multiple of its steady covariance as one from the confirmation
         bank.setdefault("replay_cov_scale", bank.get("locate_cov_scale",
                                                      FaultBankConfig.locate_cov_scale))
+        # ... and before 2026-11-28 (fifth session), had no refinement after a detection
+        bank.setdefault("refine_s", 0.0)
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):

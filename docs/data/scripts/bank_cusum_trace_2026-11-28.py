@@ -32,7 +32,7 @@ def _logged_scan(self, Y, full, t0_s, dt_s):  # type: ignore[no-untyped-def]
 if __name__ == "__main__":
     fb.FaultBank.scan = _logged_scan
     row = detection.fault_row(0, 0.5, 3, int(sys.argv[1]), seconds=18.0, fault_at_s=8.0,
-                              particles=1000, mode="fast", speed_mps=20.0)
+                              speed_mps=20.0)
     print("confirmed", row["confirmed_s"], "detected", row["detect_s"], "alert", row["alert_s"])
     last = -1.0
     for t, ref, g, j in LOG:

@@ -11,13 +11,8 @@ import time
 
 import numpy as np
 
-from firmware_sim.studies.detection import (
-    FS_HZ,
-    alerts,
-    fault_data,
-    run,
-    service_filter,
-)
+from firmware_sim.studies.detection import alerts, fault_data
+from firmware_sim.studies.filtering import FS_HZ, run, service_filter
 
 SECONDS, EVERY_S, OFF_S = 600.0, 5.0, 1.0
 
@@ -27,7 +22,7 @@ if __name__ == "__main__":
         t = np.arange(len(Y)) / FS_HZ
         Y[(t % EVERY_S) >= EVERY_S - OFF_S, :2] = np.nan
         t0 = time.perf_counter()
-        est, found, filt = run(Y, service_filter(5, seed, 1000, "fast"))
+        est, found, filt = run(Y, service_filter(5, seed))
         last = est[-1]
         print(json.dumps({
             "seed": seed, "seconds": SECONDS, "dead": "acc_w1, acc_w2",

@@ -15,7 +15,8 @@ import sys
 
 import numpy as np
 
-from firmware_sim.studies.detection import FS_HZ, fault_data, run, service_filter
+from firmware_sim.studies.detection import fault_data
+from firmware_sim.studies.filtering import FS_HZ, run, service_filter
 from gateway.estimator import observability as obs
 from gateway.model.coordinates import FilterCoords
 from gateway.model.vehicle import (
@@ -42,7 +43,7 @@ def main(seeds: list[int]) -> None:
                                   horizon_s=t)
                 print(json.dumps({"what": "bound", "data_s": t,
                                   "csy_sd_nominal": round(b[0] * th[-1, 0] / NOM, 5)}))
-        est, found, _ = run(Y, service_filter(3, seed, 1000, "fast"), speed_mps=V_MPS)
+        est, found, _ = run(Y, service_filter(3, seed), speed_mps=V_MPS)
         for e in est:
             k = round(e.t_s * FS_HZ)
             if k % 500 == 0 and e.t_s >= 6.0:

@@ -1,0 +1,73 @@
+"""The studies' filter options: the service's filter with a study's overrides, and the
+detection study's command line (:mod:`firmware_sim.studies.filtering`,
+:mod:`firmware_sim.studies.arguments`, :mod:`firmware_sim.studies.detection`)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from firmware_sim.studies import detection
+from firmware_sim.studies.filtering import FilterOptions, service_filter
+from gateway.errors import InputError
+from gateway.estimator.faultbank import FaultBankConfig
+from gateway.estimator.noisestart import NoiseCheckedStart
+
+
+def test_no_options_give_the_service_filter_and_each_override_lands_where_it_belongs() -> None:
+    plain = service_filter(3, 1, FilterOptions(particles=16))
+    assert isinstance(plain, NoiseCheckedStart)            # the service's noise test
+    assert plain.config.faults is not None
+    assert plain.config.faults.replay_cov_scale == FaultBankConfig.replay_cov_scale
+    tuned = service_filter(3, 1, FilterOptions(particles=16, replay_cov_scale=3.0,
+                                               locate_max_s=4.0, start_ramp_s=0.25,
+                                               moves_drop_null=False, sensor_noise="model"))
+    assert not isinstance(tuned, NoiseCheckedStart)
+    cfg = tuned.config
+    assert cfg.faults is not None
+    assert (cfg.faults.replay_cov_scale, cfg.faults.locate_max_s) == (3.0, 4.0)
+    assert (cfg.start_ramp_s, cfg.moves_drop_null, cfg.n_particles) == (0.25, False, 16)
+    assert cfg.faults.replay_s == plain.config.faults.replay_s      # untouched
+
+
+@pytest.mark.parametrize("bad, words", [
+    ({"mode": "slow"}, "expected mode 'fast' or 'exact', got 'slow'"),
+    ({"replay_cov_scale": 0.5}, "replay_cov_scale >= 1"),
+    ({"locate_max_s": 0.1}, "locate_max_s >= locate_s"),
+    ({"redraw_from": "hat"}, "expected redraw_from from"),
+    ({"particles": 0}, "expected at least 1 particle, got 0"),
+])
+def test_a_bad_option_is_refused_with_what_was_expected(bad: dict[str, object],
+                                                        words: str) -> None:
+    with pytest.raises(InputError, match=words.replace("(", r"\(").replace(")", r"\)")):
+        FilterOptions(**bad)  # type: ignore[arg-type]
+
+
+def test_the_study_refuses_a_bad_filter_option_in_one_line_before_any_run(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        detection.main(["faults", "--replay-cov-scale", "0.5", "--seeds", "1"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr()
+    assert err.out == ""
+    assert err.err.strip().splitlines()[-1].endswith(
+        "error: fault bank option: expected replay_cov_scale >= 1 (a multiple of the steady "
+        "covariance), got 0.5")
+
+
+def test_the_study_command_line_runs_a_fault_with_its_options(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """One halved lateral damper (3 sensors, fresh seed 3951) through the command line
+    with a look-back multiple of 3: the row carries the option, and the bank finds the
+    failed damper near its new value."""
+    assert detection.main(["faults", "--seeds", "3951", "--sensors", "3", "--cases",
+                           "csy:0.5", "--seconds", "12", "--replay-cov-scale", "3"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert len(rows) == 1
+    row = rows[0]
+    assert (row["parameter"], row["factor"], row["replay_cov_scale"]) == ("csy_ns_per_m",
+                                                                          0.5, 3.0)
+    assert row["detect_s"] is not None and row["detect_s"] <= 3.0, row
+    assert 0.8 <= row["located_rel"] <= 1.25, row
+    assert row["wrong"] == 0 and row["before"] == 0, row
