@@ -35,9 +35,10 @@ V_MPS = V_PAPER
 Filter = RBPF | NoiseCheckedStart
 """The service's filter: the RBPF, in its sensor-noise test or not."""
 
-Detection = tuple[float, str, float, float]
-"""One of the fault bank's detections: decision time (s), parameter name, located value
-relative to nominal, confirmation time (s)."""
+Found = tuple[float, str, float, float]
+"""A change the fault bank found, as :meth:`gateway.estimator.rbpf.RBPF.last_fault` gives
+it: decision time (s), parameter name, located value relative to nominal, confirmation
+time (s)."""
 
 _RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m")
 _BANK_OVERRIDES = ("locate_min_s", "locate_max_s", "replay_s", "replay_cov_scale",
@@ -62,9 +63,9 @@ class FilterOptions:
     ``moves_drop_null``, ``start_ramp_s`` and ``start_ramp_m`` override those options of
     the filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
     ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from`` and
-    ``refine_s`` those of its
-    fault bank (:class:`gateway.estimator.faultbank.FaultBankConfig`, which checks them:
-    a bad value raises :class:`gateway.errors.InputError` here, before any run).
+    ``refine_s`` those of its fault bank
+    (:class:`gateway.estimator.faultbank.FaultBankConfig`, which checks them: a bad
+    value raises :class:`gateway.errors.InputError` here, before any run).
     """
 
     particles: int = 1000
@@ -94,11 +95,12 @@ class FilterOptions:
             if problem is not None:
                 raise InputError(f"kernel delta: {problem}")
         try:
-            replace(FaultBankConfig(), **self._overrides(_BANK_OVERRIDES))
+            replace(FaultBankConfig(), **self.given(_BANK_OVERRIDES))
         except EstimatorError as exc:
             raise InputError(f"fault bank option: {exc}") from None
 
-    def _overrides(self, names: tuple[str, ...]) -> dict[str, Any]:
+    def given(self, names: tuple[str, ...]) -> dict[str, Any]:
+        """The options of ``names`` that override the service's (not None), by name."""
         return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
 
 
@@ -112,8 +114,8 @@ def service_filter(sensors: int, seed: int, options: FilterOptions | None = None
         cfg = replace(cfg, kernel_delta=options.kernel_delta)
     filt = build_estimator(cfg, FS_HZ)
     assert isinstance(filt, (RBPF, NoiseCheckedStart))
-    rbpf = replace(filt.config, **options._overrides(_RBPF_OVERRIDES))
-    bank = options._overrides(_BANK_OVERRIDES)
+    rbpf = replace(filt.config, **options.given(_RBPF_OVERRIDES))
+    bank = options.given(_BANK_OVERRIDES)
     if rbpf.faults is not None and bank:
         rbpf = replace(rbpf, faults=replace(rbpf.faults, **bank))
     if rbpf == filt.config:
@@ -122,11 +124,11 @@ def service_filter(sensors: int, seed: int, options: FilterOptions | None = None
 
 
 def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None = None,
-        speed_mps: float = V_MPS) -> tuple[list[Estimate], list[Detection], Filter]:
+        speed_mps: float = V_MPS) -> tuple[list[Estimate], list[Found], Filter]:
     """Estimates every ``every`` samples and the bank's detections on ``Y`` (T, ny)
     recorded at ``FS_HZ`` and ``speed_mps``; samples where ``held`` (T,) is True come
     without an update, as the gate sends them in a curve."""
-    found: list[Detection] = []
+    found: list[Found] = []
 
     def samples() -> Iterator[Sample]:
         seen = 0
@@ -143,7 +145,7 @@ def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None =
     return est, found, filt
 
 
-def _last(filt: Filter) -> Detection:
+def _last(filt: Filter) -> Found:
     last = filt.last_fault()
     assert last is not None
     return last

@@ -1000,9 +1000,13 @@ class RBPF:
                         unresolved=self._unresolved)
 
     def _located(self, t_s: float) -> Located | None:
-        """The bank's latest detection, on every estimate up to :data:`LOCATED_FOR_S`
+        """The bank's latest located change published before ``t_s`` (its detection, or
+        a look of its refinement that moved the interval:
+        :meth:`FaultBank.located_before`), on every estimate up to :data:`LOCATED_FOR_S`
         of data after it (a function of the state: the worker may drop estimates between
-        outputs, and a restart repeats none); None otherwise."""
+        outputs, and a restart repeats none); None otherwise. A detection's sample takes
+        the per-sample path, so what was published before ``t_s`` is always about the
+        bank's latest detection."""
         last = None if self._bank is None else self._bank.last()
         located = None if self._bank is None else self._bank.located_before(t_s)
         if last is None or located is None or not t_s - located[0] <= LOCATED_FOR_S:
