@@ -541,7 +541,7 @@ class FaultBank:
         (module docstring), the log-likelihood ratios summed; the detection (or None)
         at its end."""
         if self.vec[_REFINE] > 0:
-            self._refine_part(Y, full, t0_s, dt_s)
+            self._refine_part(Y, full)
             return None
         left = int(self.vec[_LEFT])
         n = min(len(Y), left)
@@ -766,8 +766,7 @@ class FaultBank:
         self._solve()
         self.lookback.restart(state, self.ref)
 
-    def _refine_part(self, Y: np.ndarray, full: np.ndarray, t0_s: float, dt_s: float
-                     ) -> None:
+    def _refine_part(self, Y: np.ndarray, full: np.ndarray) -> None:
         """The refinement over up to the samples it has left: the location grid sums on
         (the exact recursion), and every :data:`REFINE_EVERY` samples its likelihood
         interval is published again where it changed (:meth:`_refined`); at its end the
@@ -777,7 +776,9 @@ class FaultBank:
         rows = _running(self.g, self._grid_ratios(self._step(Y[:n], full[:n]), full[:n]))
         done = self._locate_samples(self.config.refine_s) - left
         for i in np.flatnonzero((done + 1 + np.arange(n)) % REFINE_EVERY == 0):
-            self._refined(rows[i], t0_s + i * dt_s)
+            # the look's data time from the detection's, by its sample count: the same
+            # bits whether the samples came one by one or in a block
+            self._refined(rows[i], float(self.vec[_LAST_T]) + (done + 1 + i) / self.fs_hz)
         if n:
             self.g = rows[-1].copy()
         self.vec[_REFINE] = left - n
@@ -936,9 +937,10 @@ class FaultBank:
         v = self.vec
         if self.count == 0:
             return None
-        if v[_REF_T] < t_s:
+        before = t_s - 0.5 / self.fs_hz          # half a sample: robust to rounding
+        if v[_REF_T] < before:
             return float(v[_REF_T]), float(v[_REF_V]), float(v[_LIKE_LO]), float(v[_LIKE_HI])
-        if v[_PREV_T] < t_s:
+        if v[_PREV_T] < before:
             return float(v[_PREV_T]), float(v[_PREV_V]), float(v[_PREV_LO]), float(v[_PREV_HI])
         return None
 
