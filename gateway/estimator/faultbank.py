@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (about 960): the watch, confirm, locate and refine phases share one state vector
+Over 400 lines (about 970): the watch, confirm, locate and refine phases share one state vector
 and one set of filters; splitting them would pass that state around. What the location
 replays is kept by :mod:`gateway.estimator.lookback`; the redraw's densities are
 :mod:`gateway.estimator.particles`.
@@ -735,11 +735,7 @@ class FaultBank:
         if not self.g[best] > self.config.h_nats / 2.0:
             # no change: every filter restarts from the reference's state (consistent
             # with theta_ref), as at a start; the grid's states fit only their own values
-            self.x[:] = to_lanes(np.repeat(self._state_of(0)[None], self.m, 0))
-            self.vec[_MODE] = _WATCH
-            self._hold()
-            self._solve()
-            self.lookback.restart(self._ref_state(), self.ref)
+            self._watch_again(self._state_of(0))
             return None
         det = Detection(parameter=p, factor=float(grid[best]), t_s=t_s,
                         reference=float(self.ref[p]), state=self._state_of(1 + best),
