@@ -1,6 +1,6 @@
 """Abrupt-fault detector: a bank of fault-hypothesis Kalman filters and a CUSUM per hypothesis.
 
-Over 400 lines (about 970): the watch, confirm, locate and refine phases share one state vector
+Over 400 lines: the watch, confirm, locate and refine phases share one state vector
 and one set of filters; splitting them would pass that state around. What the location
 replays is kept by :mod:`gateway.estimator.lookback`; the redraw's densities are
 :mod:`gateway.estimator.particles`.

@@ -1,6 +1,6 @@
 """The Rao-Blackwellized particle filter of Li et al. (2007): theta particles, their KFs.
 
-Over 400 lines (1091): the filter's step, its block path, resample-move and checkpoint
+Over 400 lines: the filter's step, its block path, resample-move and checkpoint
 share its state; its kernels (exact, steady), config, particles, monitor, fault bank,
 the rejoin test after a lost frame and the dead-sensor rule are already separate
 modules.

@@ -1,6 +1,6 @@
 """Fast mode's steady-state Kalman gains per particle: a batched DARE solve, and its step.
 
-Over 400 lines (704): the generators of two lane kernels (the doubling with its Newton
+Over 400 lines: the generators of two lane kernels (the doubling with its Newton
 step and warm start, the block of steady steps) and their typed wrappers, one concern.
 
 A particle's covariance and gains depend only on its theta and the speed, never on the
