@@ -471,19 +471,55 @@ def test_the_redraw_follows_the_location_likelihood(peak_nats: float) -> None:
     assert abs(np.mean(inner) / (2 * half) - 0.5) < 0.02
 
 
-def test_the_likelihood_interval_reaches_the_first_grid_values_trailing_by_8_nats() -> None:
-    """Grid values within LIKELY_NATS = 8 of the best are inside; the interval ends at
-    the first value outside on each side. A set that reaches the grid's old-value end
-    ends at the old value, one that reaches the far end is open (0 for a drop)."""
+def test_the_likelihood_interval_ends_where_the_sum_trails_by_8_nats() -> None:
+    """Values whose sum is within LIKELY_NATS = 8 of the best grid value's are inside.
+    An end lies where the secant through the last two grid values inside, extended,
+    reaches that level: exactly there for a sum linear in log theta, at the next grid
+    value where the secant does not fall (a lone peak). A set that reaches the grid's
+    old-value end ends at the old value, one that reaches the far end is open (0 for a
+    drop)."""
     assert LIKELY_NATS == 8.0
     bank = FaultBank(FaultBankConfig(), 3, FS_HZ, AR_PAPER_DEFAULT)
     grid = bank.locate_grid(side=-1.0) * 40e3
-    llr = 30.0 - 2.0 * (np.arange(15) - 6.0) ** 2    # within 8 of 30: indices 4-8
-    assert bank.likely_range(_detection(llr)) == (grid[3], grid[9])
-    llr_top = np.linspace(0.0, 28.0, 15)             # 2 nats a step, 8 back: 10th on
-    assert bank.likely_range(_detection(llr_top)) == (grid[9], 40e3)
-    llr_low = np.linspace(28.0, 0.0, 15)
-    assert bank.likely_range(_detection(llr_low)) == (0.0, grid[5])
+    u, step = np.log(grid), float(np.log(grid[1] / grid[0]))
+    rising = np.linspace(0.0, 29.4, 15)              # 2.1 nats a step; level 21.4
+    lo, hi = bank.likely_range(_detection(rising))
+    assert hi == 40e3 and grid[10] < lo < grid[11]
+    assert lo == pytest.approx(np.exp(u[11] - (23.1 - 21.4) / 2.1 * step), rel=1e-12)
+    lo, hi = bank.likely_range(_detection(rising[::-1].copy()))
+    assert lo == 0.0 and hi == pytest.approx(np.exp(u[3] + (23.1 - 21.4) / 2.1 * step),
+                                             rel=1e-12)
+    lone = 30.0 - 20.0 * (np.arange(15) - 6.0) ** 2  # only the best inside
+    assert bank.likely_range(_detection(lone)) == (grid[5], grid[7])
+
+
+def test_the_likelihood_interval_holds_a_gaussian_likelihoods_8_nat_set() -> None:
+    """For sums Gaussian in log theta (concave), at any peak and width on the grid, the
+    interval holds every value within 8 nats of the best grid value's sum and lies
+    within the grid values next outside that set (the interval before 2026-11-28's
+    sixth session), nearer to the set's true ends than they are. (Where the set reaches
+    the grid's old-value end the old value ends it: on data the location beat it by
+    h / 2.)"""
+    bank = FaultBank(FaultBankConfig(), 3, FS_HZ, AR_PAPER_DEFAULT)
+    grid = bank.locate_grid(side=-1.0) * 40e3
+    u, step = np.log(grid), float(np.log(grid[1] / grid[0]))
+    rng = np.random.default_rng(2611)
+    over_new, over_old = [], []
+    for _ in range(300):
+        u0, sd = rng.uniform(u[3], u[11]), rng.uniform(0.4, 3.0) * step
+        llr = 40.0 - (u - u0) ** 2 / (2.0 * sd**2)
+        level = llr.max() - LIKELY_NATS
+        half = sd * np.sqrt(2.0 * (40.0 - level))    # the true set: |u - u0| <= half
+        inside = np.nonzero(llr >= level)[0]
+        old_lo = grid[inside[0] - 1] if inside[0] > 0 else 0.0
+        old_hi = grid[inside[-1] + 1] if inside[-1] + 1 < len(grid) else 40e3
+        lo, hi = bank.likely_range(_detection(llr))
+        assert old_lo <= lo <= np.exp(u0 - half) * (1 + 1e-9), (u0, sd)
+        if inside[-1] + 1 < len(grid):     # else the old value ends it (beaten by h / 2)
+            assert np.exp(u0 + half) * (1 - 1e-9) <= hi <= old_hi, (u0, sd)
+            over_new.append(np.log(hi) - u0 - half)
+            over_old.append(np.log(old_hi) - u0 - half)
+    assert np.mean(over_new) < 0.5 * np.mean(over_old), (np.mean(over_new), np.mean(over_old))
 
 
 @pytest.mark.slow

@@ -892,29 +892,34 @@ class FaultBank:
         return _around(float(vec[_LAST_V]), float(grid[1] / grid[0]))
 
     def likely_range(self, det: Detection) -> tuple[float, float]:
-        """The values (lo, hi) the location cannot tell from its best one: the grid values
-        whose summed log-likelihood ratio is within :data:`LIKELY_NATS` of the best's,
-        widened to the next grid value outside them on each side (where the sum is known
-        to trail by that much or more). Past the grid's old-value end that is the old
-        value (which the location beat by ``h / 2``, more than :data:`LIKELY_NATS`); past
-        its far end nothing was summed, so 0 or infinity. For a likelihood Gaussian in log theta a
-        value outside is 4 sigma or more from the best, and the alert policy raises at
-        once only on a threshold this whole interval is past (docs/alerts.md, "Located
-        changes")."""
+        """The values (lo, hi) the location cannot tell from its best one: those whose
+        summed log-likelihood ratio is within :data:`LIKELY_NATS` of the best grid
+        value's. Each end lies between the last grid value inside and the first outside
+        (where the sum is known to trail by that much or more), where the slower-falling
+        of the last value's two secants, extended, reaches that level
+        (:func:`_likely_edge`): where the sum is concave there, or convex, every value
+        beyond trails by more, and for a sum Gaussian in log theta the end is near the
+        true one instead of up to a grid step (15 %) beyond it. Past the grid's
+        old-value end the interval ends at the old value (which the location beat by
+        ``h / 2``, more than :data:`LIKELY_NATS`); past its far end nothing was summed,
+        so 0 or infinity. For a likelihood Gaussian in log theta a value outside is
+        4 sigma or more from the best, and the alert policy raises at once only on a
+        threshold this whole interval is past (docs/alerts.md, "Located changes")."""
         return self._likely(det.grid, det.reference, det.llr)
 
     @staticmethod
     def _likely(grid: np.ndarray, reference: float, llr: np.ndarray) -> tuple[float, float]:
-        """:meth:`likely_range` of a grid of factors ``grid`` (J,) about ``reference``
-        with summed log-likelihood ratios ``llr`` (J,)."""
+        """:meth:`likely_range` of a grid of factors ``grid`` (J,), ascending, about
+        ``reference`` with summed log-likelihood ratios ``llr`` (J,)."""
         values = grid * reference
-        inside = np.nonzero(llr >= llr.max() - LIKELY_NATS)[0]
+        level = llr.max() - LIKELY_NATS
+        inside = np.nonzero(llr >= level)[0]
         i0, i1 = int(inside[0]), int(inside[-1])
         drop = grid[-1] < 1.0
         below = reference if not drop else 0.0
         above = reference if drop else np.inf
-        return (float(values[i0 - 1]) if i0 > 0 else below,
-                float(values[i1 + 1]) if i1 + 1 < len(values) else above)
+        return (_likely_edge(values, llr, level, i0, -1) if i0 > 0 else below,
+                _likely_edge(values, llr, level, i1, +1) if i1 + 1 < len(values) else above)
 
     def last_likely(self) -> tuple[float, float] | None:
         """The latest detection's :meth:`likely_range`, in the parameter's unit, or
@@ -967,3 +972,25 @@ def _cusum_path(g0: np.ndarray, d: np.ndarray) -> np.ndarray:
     T = g0[None] + np.cumsum(d, axis=0)
     return T - np.minimum(np.minimum.accumulate(T, axis=0), 0.0)
 
+
+def _likely_edge(values: np.ndarray, llr: np.ndarray, level: float, i: int, out: int
+                 ) -> float:
+    """Where the likelihood interval ends beyond the grid value ``values[i]`` (inside:
+    ``llr[i] >= level``), going ``out`` (+1 up, -1 down) towards ``values[i + out]``
+    (outside: ``llr[i + out] < level``). Of the two secants at ``values[i]`` (from its
+    inner neighbour ``values[i - out]``, and to ``values[i + out]``; linear in log
+    theta), the one that falls more slowly, extended from ``values[i]``, reaches
+    ``level`` at the end. Where the sum is concave over the three values that is the
+    inner secant, which bounds the sum beyond it from above; where it is convex between
+    the last two, the outer one (the chord), which bounds it there: either way the sum
+    is at or below ``level`` past the end. Without an inner neighbour, or where the sum
+    does not fall from it, the end is ``values[i + out]``."""
+    j, k = i + out, i - out
+    if not 0 <= k < len(values) or not llr[k] > llr[i]:
+        return float(values[j])
+    u_i, u_k, u_j = np.log(values[i]), np.log(values[k]), np.log(values[j])
+    fall_per_log = min((llr[k] - llr[i]) / abs(u_i - u_k), (llr[i] - llr[j]) / abs(u_j - u_i))
+    reach = (llr[i] - level) / fall_per_log
+    if reach >= abs(u_j - u_i):
+        return float(values[j])
+    return float(np.exp(u_i + out * reach))
