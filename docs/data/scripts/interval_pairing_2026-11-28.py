@@ -12,23 +12,21 @@ above what the truth warrants (a damper at f of nominal warrants ALARM at f <= 0
 WARNING at <= 0.55, ADVISORY at <= 0.75), before and after. A measuring tool.
 """
 
+import importlib.util
 import json
 import sys
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 
+_spec = importlib.util.spec_from_file_location(
+    "refine_pairing", Path(__file__).with_name("refine_pairing_2026-11-28.py"))
+_refine = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_refine)
+load, late = _refine.load, _refine.late      # the rows by case and seed; None as never
+
 LEVELS = {None: 0, "ADVISORY": 1, "WARNING": 2, "ALARM": 3}
-
-
-def load(path: str) -> dict[tuple, dict]:
-    with open(path) as f:
-        rows = [json.loads(line) for line in f if line.strip()]
-    return {(r["parameter"], r["factor"], r["sensors"], r["seed"]): r for r in rows}
-
-
-def late(v: float | None) -> float:
-    return np.inf if v is None else float(v)
 
 
 def warranted(factor: float) -> int:
