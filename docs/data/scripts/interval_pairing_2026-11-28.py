@@ -15,7 +15,6 @@ WARNING at <= 0.55, ADVISORY at <= 0.75), before and after. A measuring tool.
 import importlib.util
 import json
 import sys
-from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -39,10 +38,7 @@ def inside(interval: list | None, truth: float) -> bool | None:
 
 def main() -> None:
     old, new = load(sys.argv[1]), load(sys.argv[2])
-    cases: dict[tuple, list[tuple]] = defaultdict(list)
-    for key in sorted(set(old) & set(new)):
-        cases[key[:3]].append(key)
-    for case, keys in cases.items():
+    for case, keys in _refine.by_case(old, new).items():
         a0 = np.array([late(old[k]["alert_s"]) for k in keys])
         a1 = np.array([late(new[k]["alert_s"]) for k in keys])
         first = [inside(new[k]["located_like"], case[1]) for k in keys]

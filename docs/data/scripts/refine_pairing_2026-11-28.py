@@ -27,12 +27,17 @@ def late(v: float | None) -> float:
     return np.inf if v is None else float(v)
 
 
-def main() -> None:
-    old, new = load(sys.argv[1]), load(sys.argv[2])
+def by_case(old: dict[tuple, dict], new: dict[tuple, dict]) -> dict[tuple, list[tuple]]:
+    """The keys both sets of rows have, by case (parameter, factor, sensors)."""
     cases: dict[tuple, list[tuple]] = defaultdict(list)
     for key in sorted(set(old) & set(new)):
         cases[key[:3]].append(key)
-    for case, keys in cases.items():
+    return cases
+
+
+def main() -> None:
+    old, new = load(sys.argv[1]), load(sys.argv[2])
+    for case, keys in by_case(old, new).items():
         a0 = np.array([late(old[k]["alert_s"]) for k in keys])
         a3 = np.array([late(new[k]["alert_s"]) for k in keys])
         al3 = np.array([late(new[k]["alarm_s"]) for k in keys])
