@@ -172,6 +172,15 @@ def _demo(state: Path, scenario: str, duration_s: float, log: Path) -> subproces
         cwd=ROOT, stdout=open(log, "w"), stderr=subprocess.STDOUT)
 
 
+def test_the_demo_runs_the_services_particle_count() -> None:
+    """The README's first command shows the product as it ships: the paper's m = 1000,
+    the service's default (issue 14), not a lighter filter of its own."""
+    from gateway.cli import build_parser
+
+    args = build_parser(["demo"]).parse_args(["demo"])
+    assert args.particles == Config().estimator.particles == 1000
+
+
 def test_sigterm_stops_cleanly_within_5_s_and_restart_resumes(tmp_path):
     state = tmp_path / "state"
     proc = _demo(state, "nominal", 120, tmp_path / "one.log")

@@ -34,9 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulator scenario (default: the lateral damper fails at half-time)")
     p.add_argument("--duration", type=real(0.0, 86_400.0, lo_open=True), default=60.0,
                    help="seconds of simulation")
-    p.add_argument("--particles", type=config_value("estimator", "particles"), default=500,
-                   help="RBPF particles (default 500: real time with margin on 2 cores, "
-                        "beside the simulator)")
+    p.add_argument("--particles", type=config_value("estimator", "particles"),
+                   default=Config().estimator.particles,
+                   help="RBPF particles (default: the service's, %(default)s; it keeps up "
+                        "in fast mode beside the simulator on 2 cores)")
     p.add_argument("--sensors", type=int, choices=(3, 5), default=3)
     p.add_argument("--seed", type=SEED, default=1)
     p.add_argument("--state-dir", metavar="DIR", type=config_value("state", "directory"),
