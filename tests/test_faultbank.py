@@ -100,6 +100,24 @@ def test_the_location_is_fair_to_the_new_value(factor: float) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("fault_at_s", [8.0, 8.025])
+def test_the_replay_starts_at_the_changes_sample(fault_at_s: float) -> None:
+    """Csy x 0.25 at 42.5 m/s, 5 sensors, seed 4902, the step on a look-back snapshot
+    (8.0 s) and half-way between two (8.025 s). A replay started one sample before the
+    step reads it as a smaller drop: from the snapshots alone the first location was at
+    1.24 x and 1.61 x the truth, its likelihood interval 0.269-0.356 and 0.35-0.465 of
+    nominal (the truth 0.25 outside both), and the ALARM came at +1.6 s and +3.7 s.
+    Started at the change's sample, the located value is within 12 % of the truth, the
+    interval holds it, and the ALARM comes with the first alert."""
+    row = fault_row(0, 0.25, 5, 4902, seconds=18.0, fault_at_s=fault_at_s)
+    assert 0.9 <= row["located_rel"] <= 1.12, row
+    lo, hi = row["located_like"]
+    assert lo <= 0.25 <= hi, row
+    assert row["alarm_s"] is not None and row["alarm_s"] <= row["alert_s"] + 0.1, row
+    assert row["wrong"] == 0 and row["before"] == 0 and row["alerts_healthy"] == 0, row
+
+
+@pytest.mark.slow
 def test_an_inconclusive_location_sums_on_until_it_decides() -> None:
     """Csy x 0.5 at 8 s, 3 sensors, 2 x the model's sensor noise, seed 93. Its first
     location ends with the best value ahead of the reference by less than h/2; with
