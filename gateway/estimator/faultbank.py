@@ -38,7 +38,8 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   runs the exact Kalman recursion (:func:`gateway.estimator.kalman.kf_block`) from a
   covariance ``locate_cov_scale`` (100) times its own steady covariance, which lets it
   correct that error within the phase; a replayed start, whose state was estimated
-  under the right value up to the look-back's snapshot spacing, uses
+  under the right value up to the change's sample (since 2026-11-29; before, up to the
+  look-back's snapshot spacing), uses
   ``replay_cov_scale`` (10): the wider start spent the change's first evidence on
   converging (since 2026-11-28: at 20 m/s the first alerts' median 0.8 s earlier). Their
   log-likelihood ratios to the reference are summed for ``locate_s``, and the best grid
@@ -157,10 +158,10 @@ class FaultBankConfig:
     their steady covariance (module docstring; measured in docs/estimator.md, "A fair
     location"); ``replay_cov_scale``: the same multiple where they replay from the
     likeliest change time, from a state estimated under the right value up to the
-    look-back's snapshot spacing (docs/estimator.md, "The replayed location starts
-    from 10 x its steady covariance"); ``replay_s``: the longest look-back (s) over
-    which the location grid replays from the likeliest change time
-    (:mod:`gateway.estimator.lookback`; 0: the grid starts at the confirmation, as
+    change's sample (docs/estimator.md, "The replayed location starts from 10 x its
+    steady covariance", "The replay starts at the change's sample"); ``replay_s``: the
+    longest look-back (s) over which the location grid replays from the likeliest change
+    time (:mod:`gateway.estimator.lookback`; 0: the grid starts at the confirmation, as
     before 2026-11-27); ``redraw_from``: how the detected parameter is redrawn
     (:meth:`FaultBank.redraw`; "range": log-uniformly over the redraw range, as before
     2026-11-27); ``refine_s``: data time (s) the location grid sums on after a

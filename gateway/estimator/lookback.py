@@ -5,10 +5,10 @@ information in the data (2 x sensor noise, Csy x 0.5, 3 sensors: 15-66 nats/s) u
 several seconds. Its location grid used to start at the confirmation and sum only the
 samples after it, so the evidence that made the CUSUM cross was thrown away and the
 location then took at least another ``locate_s``. With this look-back the grid starts
-at the snapshot where a change most likely began (the generalised likelihood ratio's
-change time), from the reference filter's state there, and replays the buffered
-samples up to the confirmation before it sums on
-(:meth:`gateway.estimator.faultbank.FaultBank`).
+at the sample where a change most likely began (the generalised likelihood ratio's
+change time), from the reference filter's state there (the nearest snapshot before it,
+stepped on), and replays the buffered samples up to the confirmation before it sums on
+(:meth:`gateway.estimator.faultbank.FaultBank._glr_start`).
 
 Kept, for at most ``window`` samples back:
 
