@@ -670,6 +670,9 @@ class FaultBank:
         assert self._gains is not None and self._model is not None
         n_first = starts[0][0]
         Y, full = self.lookback.samples(n_first)
+        if len(Y) == 0:                       # nothing to replay: the newest snapshot
+            n, xs, ref0 = starts[-1]
+            return n, self._without_null(xs[None], ref0[None])[0], ref0
         end = n_first + len(Y)
         sums: dict[int, float] = {}
 
