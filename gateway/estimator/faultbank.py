@@ -702,11 +702,7 @@ class FaultBank:
         if len(Y) == 0:
             return n_first
         x, _ = self._ref_at(starts, n_first, Y, full)
-        self.x[:] = to_lanes(np.repeat(x, self.m, 0))
-        LL = np.empty((len(Y), self._nch * LANES))
-        kf_steady_block(self.x, self._phi, self._model[2], Y, full, self._gains, LL,
-                        np.empty_like(LL))
-        d = self._grid_ratios(LL, full)
+        d = self._grid_ratios(self._steady_from(x, Y, full), full)
         d[~np.isfinite(d)] = -1e300
         g = _cusum_path(np.zeros(d.shape[1]), d)
         zero = np.flatnonzero(g[:, int(np.argmax(g[-1]))] <= 0.0)
@@ -723,10 +719,7 @@ class FaultBank:
         x = self._without_null(xs[None], ref0[None])
         if c > n:
             k0 = starts[0][0]
-            self.x[:] = to_lanes(np.repeat(x, self.m, 0))
-            part = np.empty((c - n, self._nch * LANES))
-            kf_steady_block(self.x, self._phi, self._model[2], Y[n - k0:c - k0],
-                            full[n - k0:c - k0], self._gains, part, np.empty_like(part))
+            self._steady_from(x, Y[n - k0:c - k0], full[n - k0:c - k0])
             x = self._without_null(self.x.reshape(self._nch, NZ, LANES)[0, :, 0][None],
                                    ref0[None])
         return x, ref0
@@ -738,11 +731,17 @@ class FaultBank:
         assert self._gains is not None and self._model is not None
         if len(Y) == 0:
             return -np.inf
+        return float(np.max(self._ratios(self._steady_from(x, Y, full), full).sum(axis=0)))
+
+    def _steady_from(self, x: np.ndarray, Y: np.ndarray, full: np.ndarray) -> np.ndarray:
+        """Every filter started from the state ``x`` (1, 16) and stepped with steady gains
+        over ``Y`` (k, ny), ``full`` (k,), in place: the log-likelihoods (k, lanes)."""
+        assert self._gains is not None and self._model is not None
         self.x[:] = to_lanes(np.repeat(x, self.m, 0))
         LL = np.empty((len(Y), self._nch * LANES))
         kf_steady_block(self.x, self._phi, self._model[2], Y, full, self._gains, LL,
                         np.empty_like(LL))
-        return float(np.max(self._ratios(LL, full).sum(axis=0)))
+        return LL
 
     def _start_cov(self, v0: np.ndarray | None = None, scale: float | None = None
                    ) -> np.ndarray:
