@@ -18,7 +18,9 @@ import multiprocessing
 import sys
 import time
 
-from gateway.estimator.lanecode import KERNELS
+import numpy as np
+
+from gateway.estimator.lanecode import KERNELS, compile_all
 from gateway.estimator.threads import available_cores
 
 MODULES = ("gateway.estimator.steady", "gateway.estimator.kalman",
@@ -31,6 +33,39 @@ def kernel_names() -> list[str]:
     for module in MODULES:
         importlib.import_module(module)
     return list(KERNELS)
+
+
+def load_functions() -> None:
+    """Compile (or load) the estimator's plain numba functions, which compile lazily on
+    their first call, by calling each once on small arrays of the types the filter
+    passes (a numba function compiles once per argument types, not per size).
+
+    Without this, a worker whose kernels were loaded said it was ready, and its first
+    samples then waited for these functions: on a cold cache seconds, and 460 grid
+    samples dropped at the demo's first start (2026-11-29). The test
+    ``tests/test_precompile.py`` runs a faulted record after :func:`load_all` in a fresh
+    process and fails if any numba function of the gateway compiles during it.
+    """
+    from gateway.estimator import monitor, particles, rbpf
+    from gateway.estimator.lanecode import LANES
+    from gateway.model.coordinates import NZ
+
+    m, k = 4, 2
+    logw, w = np.zeros(m), np.full(m, 1.0 / m)
+    LL, NIS = np.zeros((k, LANES)), np.zeros((k, LANES))
+    particles.absorb(logw, LL[0], NIS[0], w)
+    particles.absorb_block(logw, LL, NIS, w, -1.0, False, np.zeros(k, dtype=np.int64),
+                           1, 0.0, 0.0, 0, 0, monitor.initial_state())
+    monitor.update_nb(1, 0.0, 0.0, 0, 0, monitor.initial_state(), 0.0, 0)
+    for order in ("C", "F"):                 # a prior draw is column-major, a move's not
+        rbpf._posterior(w, np.zeros((m, 3), order=order), np.zeros((1, NZ * LANES)))
+
+
+def load_all() -> None:
+    """Every kernel and every plain numba function of the estimator compiled or loaded
+    in this process: what a worker does before it says it is ready."""
+    compile_all()
+    load_functions()
 
 
 def compile_one(name: str) -> tuple[str, float]:
@@ -63,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for name, dt in compile_parallel(args.jobs):
         print(f"{name}: {dt:.1f} s", flush=True)
+    t1 = time.perf_counter()
+    load_functions()
+    print(f"plain numba functions: {time.perf_counter() - t1:.1f} s", flush=True)
     print(f"estimator kernels ready in numba's cache: {time.perf_counter() - t0:.1f} s "
           f"with {args.jobs} process(es)", flush=True)
     return 0

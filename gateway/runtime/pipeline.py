@@ -118,15 +118,16 @@ def _differences(then: Any, now: Any, skip: set[str], prefix: str = "") -> list[
 
 def warm_estimator(numba_threads: int) -> None:
     """A worker process's start: numba's global settings (once, here), then import the
-    estimator and load its compiled kernels (so a spare worker waits warm; on a cold
-    cache this compiles them: minutes, see :mod:`gateway.estimator.precompile`)."""
+    estimator and load its compiled kernels and functions (so a spare worker waits warm
+    and its first samples wait for no compile; on a cold cache this compiles them:
+    minutes, see :mod:`gateway.estimator.precompile`)."""
     from gateway.estimator.threads import configure
 
     configure(numba_threads)
     import gateway.estimator.rbpf  # noqa: F401  (defines the kernels)
-    from gateway.estimator.lanecode import compile_all
+    from gateway.estimator.precompile import load_all
 
-    compile_all()
+    load_all()
 
 
 def worker_settings(cfg: Config) -> WorkerSettings:
