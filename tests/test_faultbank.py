@@ -118,6 +118,24 @@ def test_the_replay_starts_at_the_changes_sample(fault_at_s: float) -> None:
 
 
 @pytest.mark.slow
+def test_a_crossing_that_names_the_wrong_parameter_locates_the_runner_up_at_once() -> None:
+    """Csy x 0.25 at 8.025 s, 3 sensors, seed 4902. A quarter second after the step the
+    conicity's CUSUM leads (lambda x 2.5 at 34.9 nats, Csy x 0.25 at 7.1), and its
+    location finds no change after 2.3 s. Watching again from scratch then found Csy at
+    +5.2 s, the campaign's one first alert after +5 s (2026-11-29). Locating the
+    runner-up, Csy, from the look-back before the first confirmation finds it at the
+    end of that location, its interval holding the truth."""
+    old, row = (fault_row(0, 0.25, 3, 4902, seconds=18.0, fault_at_s=8.025,
+                          options=FilterOptions(runner_up=r)) for r in (False, True))
+    assert old["detect_s"] is not None and old["detect_s"] > 4.0, old   # the case's premise
+    assert row["detect_s"] is not None and row["detect_s"] <= 3.0, row
+    lo, hi = row["located_like"]
+    assert lo <= 0.25 <= hi and 0.8 <= row["located_rel"] <= 1.25, row
+    assert row["alarm_s"] is not None and row["alarm_s"] <= row["detect_s"] + 0.2, row
+    assert row["wrong"] == 0 and row["before"] == 0 and row["alerts_healthy"] == 0, row
+
+
+@pytest.mark.slow
 def test_an_inconclusive_location_sums_on_until_it_decides() -> None:
     """Csy x 0.5 at 8 s, 3 sensors, 2 x the model's sensor noise, seed 93. Its first
     location ends with the best value ahead of the reference by less than h/2; with

@@ -12,12 +12,13 @@ from gateway.model.coordinates import NZ
 NY, D = 3, 3
 
 
-def _fed(blocks: list[int], window: int = 400, seed: int = 0) -> tuple[Lookback, np.ndarray]:
+def _fed(blocks: list[int], window: int = 400, seed: int = 0, extra: int = 0
+         ) -> tuple[Lookback, np.ndarray]:
     """A look-back fed 1000 samples in ``blocks`` (sizes summing to 1000), with a
     snapshot (state and theta filled with its count) at every multiple of SNAP_EVERY,
     as the bank makes them."""
     Y = np.random.default_rng(seed).standard_normal((1000, NY))
-    lb = Lookback(window, NY, D)
+    lb = Lookback(window, NY, D, extra)
     lb.reset(np.full(NZ, -1.0), np.ones(D))
     c = 0
     for k in blocks:
@@ -47,6 +48,20 @@ def test_a_replay_may_start_at_any_snapshot_within_the_window() -> None:
     got_y, got_full = lb.samples(600)
     np.testing.assert_array_equal(got_y, Y[600:])   # the ring, unwrapped, in order
     assert got_full.all()
+
+
+def test_extra_samples_let_a_replay_start_before_an_earlier_count() -> None:
+    """A runner-up's replay: the snapshots within the window before count 700, with
+    every sample since kept by the extra 300; without the extra, those that fell out
+    of the ring are not offered."""
+    lb, Y = _fed([700], extra=300)
+    lb.commit(Y[700:], np.ones(300, dtype=bool))   # located, no snapshots
+    assert [n for n, _, _ in lb.starts(700)] == list(range(250, 701, SNAP_EVERY))
+    np.testing.assert_array_equal(lb.samples(250)[0], Y[250:])
+    assert [n for n, _, _ in lb.starts()] == list(range(550, 701, SNAP_EVERY))
+    plain, _ = _fed([700])
+    plain.commit(Y[700:], np.ones(300, dtype=bool))
+    assert [n for n, _, _ in plain.starts(700)] == list(range(550, 701, SNAP_EVERY))
 
 
 def test_a_restart_forgets_what_came_before_it() -> None:

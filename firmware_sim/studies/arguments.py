@@ -77,6 +77,9 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--refine-s", type=float, default=None,
                     help="how long the location grid sums on after a detection, s (0: "
                          "not at all; default: the bank's own)")
+    ap.add_argument("--runner-up", action=argparse.BooleanOptionalAction, default=None,
+                    help="where a location finds no change, locate the runner-up damper "
+                         "next from the same look-back (default: the bank's own, on)")
 
 
 def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> FilterOptions:
@@ -88,6 +91,7 @@ def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> Fil
             kernel_delta=args.kernel_delta, moves_drop_null=args.moves_drop_null,
             redraw_from=args.redraw_from, locate_min_s=args.locate_min_s,
             locate_max_s=args.locate_max_s, replay_s=args.replay_s,
-            replay_cov_scale=args.replay_cov_scale, refine_s=args.refine_s)
+            replay_cov_scale=args.replay_cov_scale, refine_s=args.refine_s,
+            runner_up=args.runner_up)
     except InputError as exc:
         ap.error(str(exc))

@@ -42,7 +42,7 @@ time (s)."""
 
 _RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m")
 _BANK_OVERRIDES = ("locate_min_s", "locate_max_s", "replay_s", "replay_cov_scale",
-                   "redraw_from", "refine_s")
+                   "redraw_from", "refine_s", "runner_up")
 
 
 def kernel_delta_problem(value: float) -> str | None:
@@ -62,8 +62,8 @@ class FilterOptions:
     the service's ``[estimator]`` settings; ``kernel_delta`` too (with its floor).
     ``moves_drop_null``, ``start_ramp_s`` and ``start_ramp_m`` override those options of
     the filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
-    ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from`` and
-    ``refine_s`` those of its fault bank
+    ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from``,
+    ``refine_s`` and ``runner_up`` those of its fault bank
     (:class:`gateway.estimator.faultbank.FaultBankConfig`, which checks them: a bad
     value raises :class:`gateway.errors.InputError` here, before any run).
     """
@@ -81,6 +81,7 @@ class FilterOptions:
     replay_cov_scale: float | None = None
     redraw_from: str | None = None
     refine_s: float | None = None
+    runner_up: bool | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in ("fast", "exact"):
@@ -163,5 +164,5 @@ def filter_columns(filt: Filter) -> dict[str, Any]:
             "moves_drop_null": filt.config.moves_drop_null,
             **{name: None if bank is None else getattr(bank, name)
                for name in ("redraw_from", "locate_min_s", "locate_s", "locate_max_s",
-                            "replay_s", "replay_cov_scale", "refine_s")},
+                            "replay_s", "replay_cov_scale", "refine_s", "runner_up")},
             "kernel_delta": filt.config.delta}

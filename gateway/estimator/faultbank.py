@@ -169,7 +169,9 @@ class FaultBankConfig:
     docstring; 0: the bank watches again at once, as before 2026-11-28's fifth session;
     it counts towards ``hold_s``, so the bank is back to watching ``max(hold_s,
     refine_s)`` after a detection; docs/estimator.md "The location refines its interval
-    after a detection").
+    after a detection"); ``runner_up``: where a location finds no change, locate the
+    watch's runner-up damper next, from the same look-back (:meth:`FaultBank._runner_up`;
+    False: watch again, as before 2026-11-29's eighth session).
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -187,6 +189,7 @@ class FaultBankConfig:
     replay_s: float = 2.0
     redraw_from: str = "likelihood"
     refine_s: float = 1.0
+    runner_up: bool = True
 
     def __post_init__(self) -> None:
         if self.redraw_from not in REDRAWS:
@@ -239,12 +242,15 @@ ratio is -inf from then on, so no value is needed."""
 # layout of the bank's scalar vector
 _ACTIVE, _HOLD, _LAST_T, _LAST_P, _LAST_F, _COUNT, _PEND, _MODE, _LOC_P, _LOC_SIDE, _LEFT, \
     _CONF_T, _LAST_V, _LIKE_LO, _LIKE_HI, _REFINE, _REF_T, _REF_V, _PREV_T, _PREV_V, \
-    _PREV_LO, _PREV_HI = range(22)
+    _PREV_LO, _PREV_HI, _RUNNER, _RUNNER_AT = range(24)
 _VEC_BEFORE_LIKE = 13
 """Length of the scalar vector in checkpoints from before the likelihood interval."""
-_VEC_LEN = 22
-"""Length of the scalar vector; shorter ones (before the refinement, 15) are extended
-(not refining, the last detection's own interval published)."""
+_VEC_BEFORE_RUNNER = 22
+"""Length of the scalar vector in checkpoints from before the runner-up's location."""
+_VEC_LEN = 24
+"""Length of the scalar vector; shorter ones are extended: before the refinement (15),
+not refining, the last detection's own interval published; before the runner-up (22),
+no runner-up pending."""
 REFINE_EVERY = 5 * SNAP_EVERY
 """Samples between the refinement's looks at its likelihood interval (250 ms at 1 kHz)."""
 GLR_BACK = 60
@@ -349,9 +355,10 @@ class FaultBank:
             return arrays
         ext = np.zeros_like(self.vec)
         ext[:len(vec)] = vec
-        if len(vec) == _VEC_BEFORE_LIKE and vec[_COUNT] > 0:
-            ext[_LIKE_LO], ext[_LIKE_HI] = self._range_of(vec)
-        ext[_REF_T], ext[_REF_V], ext[_PREV_T] = ext[_LAST_T], ext[_LAST_V], np.nan
+        if len(vec) < _VEC_BEFORE_RUNNER:
+            if len(vec) == _VEC_BEFORE_LIKE and vec[_COUNT] > 0:
+                ext[_LIKE_LO], ext[_LIKE_HI] = self._range_of(vec)
+            ext[_REF_T], ext[_REF_V], ext[_PREV_T] = ext[_LAST_T], ext[_LAST_V], np.nan
         return {**arrays, "bank_vec": ext}
 
     def snapshot(self) -> tuple[tuple[np.ndarray, ...], Lookback]:
@@ -419,8 +426,11 @@ class FaultBank:
         self._model = (disc, null, H, r, float(q_unit))
         self._gains = SteadyGains.empty(self._nch, len(r))
         window = round(self.config.replay_s * self.fs_hz)
-        if self.lookback.window != window or self.lookback.y.shape[1] != len(r):
-            self.lookback = Lookback(window, len(r), self.n_params)
+        # a runner-up replays from the first confirmation's look-back, after a location
+        extra = self._locate_samples(self.config.locate_max_s) if self.config.runner_up else 0
+        if self.lookback.window != window or self.lookback.y.shape[1] != len(r) \
+                or self.lookback.cap != Lookback(window, 0, 0, extra).cap:
+            self.lookback = Lookback(window, len(r), self.n_params, extra)
         if self.active:
             self._solve()
             # the look-back's samples were filtered under the last model
@@ -564,12 +574,15 @@ class FaultBank:
         if j is None:
             self.g = _running(self.g, d)[-1]
             self.vec[_LEFT] = left - n
+            self.lookback.commit(Y, full)
             return None
         if j < n - 1:                          # the early stop: the states up to it only
             self.x, self.P = x0, P0
             self._step(Y[:j + 1], full[:j + 1])
             self._part = j + 1
         self.g = _running(self.g, d[:j + 1])[-1]
+        # the look-back keeps the located samples: a runner-up's replay needs them
+        self.lookback.commit(Y[:j + 1], full[:j + 1])
         return self._located(t0_s + j * dt_s)
 
     def _step(self, Y: np.ndarray, full: np.ndarray) -> np.ndarray:
@@ -593,7 +606,8 @@ class FaultBank:
         x = self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES]
         return self._without_null(x[None], self.hypotheses()[filt:filt + 1])[0]
 
-    def _locate(self, best: int, t_s: float) -> Detection | None:
+    def _locate(self, best: int, t_s: float, runner_at: int | None = None
+                ) -> Detection | None:
         """A confirmed crossing by hypothesis ``best`` at data time ``t_s``: the
         hypotheses become a grid over the changed parameter on the crossing's side of
         the reference (:meth:`locate_grid`), and their log-likelihood ratios are summed
@@ -601,10 +615,18 @@ class FaultBank:
         :data:`CONICITY`), every grid filter starts from the reference's state at the
         snapshot :meth:`_glr_start` picks and replays the samples since; the detection
         (or None) if that sum already decides. Without one (or before the look-back has
-        a snapshot), every filter starts from ``best``'s state here."""
+        a snapshot), every filter starts from ``best``'s state here.
+
+        From the watch (``runner_at`` None) the largest CUSUM on another damper, if
+        positive, is kept as the runner-up (:meth:`_runner_up`): where this location finds
+        no change, that parameter is located next, at once, from the look-back's
+        snapshots before this confirmation (``runner_at``, the look-back's count then)."""
         p, fi = divmod(best, len(self.factors))
-        state = self._state_of(1 + best)       # under its watch theta
-        starts = self.lookback.starts() if p != CONICITY else []
+        first = runner_at is None
+        self.vec[_RUNNER] = self._runner_up(p) if self.config.runner_up and first else 0.0
+        self.vec[_RUNNER_AT] = self.lookback.count if first else 0.0
+        state = self._state_of(1 + best) if first else self._state_of(0)
+        starts = self.lookback.starts(runner_at) if p != CONICITY else []
         self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
         self.vec[_LOC_SIDE] = -1.0 if self.factors[fi] < 1.0 else 1.0
         self.vec[_LEFT] = self._locate_samples(self.config.locate_max_s)
@@ -625,6 +647,25 @@ class FaultBank:
         self.g = self._grid_ratios(LL, full).sum(axis=0)
         self.vec[_LEFT] = max(1, int(self.vec[_LEFT]) - len(Y))
         return self._located(t_s) if self._settled(len(Y), self.g.max()) else None
+
+    def _runner_up(self, p: int) -> float:
+        """The watch's best hypothesis (1 + its index) on a damper other than ``p``, if its
+        CUSUM is positive; 0 for none.
+
+        A crossing says that something changed (``exp(-h)`` bounds the chance of one in a
+        correct model), not always what: in the first quarter second after a large damper
+        step the conicity's CUSUM can lead (seed 4902, 3 sensors, Csy x 0.25: lambda x 1.6
+        at 25.8 nats, Csy x 0.25 at 10.7). Its location then finds no change, and
+        watching again from scratch, with the look-back restarted after the change, put
+        the damper's detection 2.7-5.3 s after it, located at 0.4 x its value. The
+        runner-up's location replays from the look-back's change time, as a first
+        location would, and needs the same lead over the reference."""
+        nf = len(self.factors)
+        others = [j for j in range(self.n_hyp) if j // nf not in (p, CONICITY)]
+        if not others:
+            return 0.0
+        j = max(others, key=lambda i: self.g[i])
+        return float(j + 1) if self.g[j] > 0.0 else 0.0
 
     def _ratios(self, LL: np.ndarray, full: np.ndarray) -> np.ndarray:
         """Each hypothesis's log-likelihood ratio to the reference (k, J) from the
@@ -813,6 +854,11 @@ class FaultBank:
         best = int(np.argmax(self.g))
         p = int(self.vec[_LOC_P])
         if not self.g[best] > self.config.h_nats / 2.0:
+            runner, at = int(self.vec[_RUNNER]) - 1, int(self.vec[_RUNNER_AT])
+            self.vec[_RUNNER] = 0.0
+            if runner >= 0 and self.lookback.starts(at):
+                # the change was not where the crossing pointed: the runner-up next
+                return self._locate(runner, t_s, runner_at=at)
             # no change: every filter restarts from the reference's state (consistent
             # with theta_ref), as at a start; the grid's states fit only their own values
             self._watch_again(self._state_of(0))

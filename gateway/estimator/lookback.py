@@ -39,12 +39,13 @@ _COUNT, _FROM, _SLOT = range(3)
 
 
 class Lookback:
-    """Ring buffers of the last ``window`` watched samples (module docstring); ``window``
-    0: nothing is kept and :meth:`starts` is always empty."""
+    """Ring buffers of the last ``window`` watched samples (module docstring), and of
+    ``extra`` samples more for a replay from an earlier count (:meth:`starts`'s ``at``);
+    ``window`` 0: nothing is kept and :meth:`starts` is always empty."""
 
-    def __init__(self, window: int, ny: int, n_params: int) -> None:
+    def __init__(self, window: int, ny: int, n_params: int, extra: int = 0) -> None:
         self.window = int(window)
-        self.cap = self.window + SNAP_EVERY if self.window else 0
+        self.cap = self.window + int(extra) + SNAP_EVERY if self.window else 0
         n_snap = self.cap // SNAP_EVERY + 4 if self.window else 0
         self.y = np.zeros((self.cap, ny))                # values (cap, ny)
         self.full = np.zeros(self.cap, dtype=bool)       # updated (cap,)
@@ -102,15 +103,18 @@ class Lookback:
         idx = np.arange(c, c + k)[-self.cap:] % self.cap
         self.y[idx], self.full[idx] = Y[-self.cap:], full[-self.cap:]
 
-    def starts(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    def starts(self, at: int | None = None) -> list[tuple[int, np.ndarray, np.ndarray]]:
         """Every snapshot a replay may start from, oldest first: (count, reference state
         (16,), its theta (d,)), since the last restart and within ``window`` (and one
-        snapshot's spacing) of the current count."""
+        snapshot's spacing) before count ``at`` (None: the current count), whose samples
+        since are all still kept."""
         if not self.on:
             return []
         n, c = self.snap_n, self.count
-        ok = np.flatnonzero((n >= 0) & (n >= self.vec[_FROM]) & (n >= c - self.cap)
-                            & (n <= c))
+        at = c if at is None else at
+        ok = np.flatnonzero((n >= 0) & (n >= self.vec[_FROM])
+                            & (n >= at - self.window - SNAP_EVERY) & (n <= at)
+                            & (n >= c - self.cap))
         return [(int(n[s]), self.snap_x[s].copy(), self.snap_ref[s].copy())
                 for s in ok[np.argsort(n[ok], kind="stable")]]
 

@@ -1092,6 +1092,9 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
                                                      FaultBankConfig.locate_cov_scale))
         # ... and before 2026-11-28 (fifth session), had no refinement after a detection
         bank.setdefault("refine_s", 0.0)
+        # ... and before 2026-11-29 (eighth session), watched again after a location that
+        # found no change
+        bank.setdefault("runner_up", False)
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
