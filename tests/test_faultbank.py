@@ -136,6 +136,37 @@ def test_a_crossing_that_names_the_wrong_parameter_locates_the_runner_up_at_once
 
 
 @pytest.mark.slow
+def test_a_location_runs_once_however_often_the_estimator_rescans_it(monkeypatch) -> None:
+    """The estimator scans the bank ahead and rewinds it where a resample stops the
+    particles first, so one confirmation reached the location two to four times, each a
+    change-time search and replay. Now the replay runs once per distinct state, and the
+    run's estimates and detections are the same bits as with every call computed."""
+    th, Y = fault_data(0, 0.25, 3, 4902, 18.0, 8.025)
+    calls: dict[str, int] = {"locate": 0, "computed": 0}
+    locate, now = FaultBank._locate, FaultBank._locate_now
+
+    def counted_locate(self, *a, **k):
+        calls["locate"] += 1
+        return locate(self, *a, **k)
+
+    def counted_now(self, *a, **k):
+        calls["computed"] += 1
+        return now(self, *a, **k)
+
+    monkeypatch.setattr(FaultBank, "_locate", counted_locate)
+    monkeypatch.setattr(FaultBank, "_locate_now", counted_now)
+    est, found, _ = run(Y, service_filter(3, 4902))
+    assert found and found[0][1] == "csy_ns_per_m", found
+    assert calls["computed"] < calls["locate"], calls
+    monkeypatch.setattr(FaultBank, "_memo_key", lambda self, *a: object())   # never equal
+    calls.update(locate=0, computed=0)
+    est2, found2, _ = run(Y, service_filter(3, 4902))
+    assert calls["computed"] == calls["locate"], calls
+    assert found2 == found
+    assert [(e.t_s, e.mean, e.std) for e in est2] == [(e.t_s, e.mean, e.std) for e in est]
+
+
+@pytest.mark.slow
 def test_an_inconclusive_location_sums_on_until_it_decides() -> None:
     """Csy x 0.5 at 8 s, 3 sensors, 2 x the model's sensor noise, seed 93. Its first
     location ends with the best value ahead of the reference by less than h/2; with
