@@ -44,8 +44,11 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   converging (since 2026-11-28: at 20 m/s the first alerts' median 0.8 s earlier). Their
   log-likelihood ratios to the reference are summed for ``locate_s``, and the best grid
   value, if it beats the reference by ``h / 2``, is the :class:`Detection`; if it does
-  not beat the reference at all, nothing changed:
-  every filter restarts from the reference's state and the bank watches again. In
+  not beat the reference at all, that parameter did not change: since 2026-11-29
+  (``runner_up``) the watch's best hypothesis on another damper, if its CUSUM was
+  positive at the confirmation, is located next, at once, replaying from the look-back
+  before the confirmation (:meth:`FaultBank._runner_up`); otherwise every filter
+  restarts from the reference's state and the bank watches again. In
   between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
   later look costs no more false detections). Optionally (``locate_min_s`` below
   ``locate_s``; off by default) the sum stops early, after at least ``locate_min_s``, at
