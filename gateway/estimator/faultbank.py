@@ -435,7 +435,7 @@ class FaultBank:
         # a runner-up replays from the first confirmation's look-back, after a location
         extra = self._locate_samples(self.config.locate_max_s) if self.config.runner_up else 0
         if self.lookback.window != window or self.lookback.y.shape[1] != len(r) \
-                or self.lookback.cap != Lookback(window, 0, 0, extra).cap:
+                or self.lookback.cap != Lookback.capacity(window, extra):
             self.lookback = Lookback(window, len(r), self.n_params, extra)
         if self.active:
             self._solve()
@@ -669,7 +669,7 @@ class FaultBank:
         first = runner_at is None
         self.vec[_RUNNER] = self._runner_up(p) if self.config.runner_up and first else 0.0
         self.vec[_RUNNER_AT] = self.lookback.count if first else 0.0
-        state = self._state_of(1 + best) if first else self._state_of(0)
+        state = self._state_of(1 + best)       # under its watch theta (a runner-up replays)
         starts = self.lookback.starts(runner_at) if p != CONICITY else []
         self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
         self.vec[_LOC_SIDE] = -1.0 if self.factors[fi] < 1.0 else 1.0

@@ -45,7 +45,7 @@ class Lookback:
 
     def __init__(self, window: int, ny: int, n_params: int, extra: int = 0) -> None:
         self.window = int(window)
-        self.cap = self.window + int(extra) + SNAP_EVERY if self.window else 0
+        self.cap = self.capacity(window, extra)
         n_snap = self.cap // SNAP_EVERY + 4 if self.window else 0
         self.y = np.zeros((self.cap, ny))                # values (cap, ny)
         self.full = np.zeros(self.cap, dtype=bool)       # updated (cap,)
@@ -53,6 +53,11 @@ class Lookback:
         self.snap_ref = np.zeros((n_snap, n_params))     # their thetas
         self.snap_n = np.full(n_snap, -1.0)              # their sample counts (-1: none)
         self.vec = np.zeros(3)                           # count, first count, next slot
+
+    @staticmethod
+    def capacity(window: int, extra: int = 0) -> int:
+        """Samples the ring keeps for a ``window`` and ``extra`` (0 without a window)."""
+        return int(window) + int(extra) + SNAP_EVERY if window else 0
 
     @property
     def on(self) -> bool:
