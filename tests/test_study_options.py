@@ -9,7 +9,7 @@ import json
 import pytest
 
 from firmware_sim.studies import detection
-from firmware_sim.studies.filtering import FilterOptions, service_filter
+from firmware_sim.studies.filtering import FilterOptions, run, service_filter
 from gateway.errors import InputError
 from gateway.estimator.faultbank import FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
@@ -71,3 +71,22 @@ def test_the_study_command_line_runs_a_fault_with_its_options(
     assert row["detect_s"] is not None and row["detect_s"] <= 3.0, row
     assert 0.8 <= row["located_rel"] <= 1.25, row
     assert row["wrong"] == 0 and row["before"] == 0, row
+
+
+@pytest.mark.slow
+def test_a_filter_the_noise_test_replaced_takes_its_detections_with_it() -> None:
+    """Seed 5334, 3 sensors, the data's sensor noise 2 x the model's: the filter of the
+    first 5 s, untested and provisional, locks onto a wrong mode and its bank finds a
+    Csy change at 4.86 s; the noise test then replaces it and replays the 5 s. That
+    detection went with the filter that made it, and the replacement's own, the Csy step
+    at 8.025 s, is collected. (Before, the run kept the first and missed the second: the
+    new filter's count started below the list's length.)"""
+    _, Y = detection.fault_data(0, 0.25, 3, 5334, 18.0, 8.025, noise_scale=2.0)
+    gone: list = []
+    filt = service_filter(3, 5334)
+    _, found, _ = run(Y[:10_500], filt, replaced=gone)
+    assert isinstance(filt, NoiseCheckedStart) and filt.result is not None
+    assert any(filt.result.replaced), filt.result
+    assert [(n, t < filt.result.t_s) for t, n, _, _ in gone] == [("csy_ns_per_m", True)], gone
+    assert len(found) == 1 and found[0][1] == "csy_ns_per_m", found
+    assert 8.025 < found[0][0] < 10.5 and found[0][2] < 0.4, found

@@ -23,7 +23,9 @@ nominal, Sec. 4.2 speed or ``--speed-mps``) with 3 and 5 sensors and prints one 
   ``alert_severity``: the first alert's level (the alert columns:
   :mod:`firmware_sim.studies.detection_alerts`);
 - ``wrong``: detections on a healthy parameter; ``before``: detections before the fault;
-  ``alerts_healthy`` / ``alerts_before`` the same for alerts.
+  ``alerts_healthy`` / ``alerts_before`` the same for alerts; ``replaced_detections``:
+  detections of a filter that the sensor-noise test then replaced (its estimates were
+  provisional; none of the columns above counts them; since 2026-11-29's ninth session).
 
 ``nominal --seconds 600`` runs healthy data and counts detections (false alarms);
 ``--hold-every-s 30 --hold-s 3`` holds the updates for 3 s every 30 s, as the gate does in
@@ -58,6 +60,7 @@ from firmware_sim.studies.filtering import (
     FS_HZ,
     V_MPS,
     FilterOptions,
+    Found,
     filter_columns,
     run,
     service_filter,
@@ -99,6 +102,12 @@ def without(Y: np.ndarray, sensors: int, dead: Sequence[str]) -> np.ndarray:
     return Y
 
 
+def _rounded(found: Sequence[Found]) -> list[tuple[float, str, float]]:
+    """Detections as a row's column: (decision time s, parameter, located value relative
+    to nominal), rounded."""
+    return [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found]
+
+
 def _final_columns(last: Estimate, truth: np.ndarray) -> dict[str, Any]:
     """The last estimate's error and stated sigma against ``truth`` (3,), in %."""
     return {"final_err_pct": [round(100 * (m - t) / t, 2)
@@ -121,9 +130,10 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
                        speed_mps)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
+    gone: list[Found] = []
     est, found, filt = run(Y, service_filter(sensors, seed, options),
                            held=holds(len(Y), FS_HZ, hold_at_s, hold_s) if hold_at_s else None,
-                           speed_mps=speed_mps)
+                           speed_mps=speed_mps, replaced=gone)
     wall = time.perf_counter() - t0
     new = th[-1, parameter]
     ok = [abs(e.mean[parameter] - new) <= TRACK_REL * new for e in est]
@@ -150,7 +160,8 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
                                        and e.located.parameter == name), None),
             "wrong": sum(f[1] != name for f in found if f[0] > fault_at_s),
             "before": sum(f[0] <= fault_at_s for f in found),
-            "detections": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
+            "detections": _rounded(found),
+            "replaced_detections": _rounded(gone),
             "monitor_alarms": filt.n_detections, **_final_columns(est[-1], th[-1]),
             "wall_s": round(wall, 1)}
 
@@ -165,9 +176,10 @@ def nominal_row(sensors: int, seed: int, *, seconds: float,
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale, speed_mps)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
+    gone: list[Found] = []
     est, found, filt = run(Y, service_filter(sensors, seed, options),
                            held=periodic_holds(len(Y), FS_HZ, hold_every_s, hold_s),
-                           speed_mps=speed_mps)
+                           speed_mps=speed_mps, replaced=gone)
     last = est[-1]
     return {"what": "nominal", "sensors": sensors, "speed_mps": speed_mps, "seed": seed,
             "mode": options.mode, "dead": list(dead) or None,
@@ -175,7 +187,7 @@ def nominal_row(sensors: int, seed: int, *, seconds: float,
             "hold_every_s": hold_every_s, "hold_s": hold_s if hold_every_s else None,
             "particles": options.particles, "seconds": seconds, "detections": len(found),
             "alerts": len(alerts(est)),
-            "detail": [(round(t, 3), n, round(v, 3)) for t, n, v, _ in found],
+            "detail": _rounded(found), "replaced_detections": _rounded(gone),
             "monitor_alarms": filt.n_detections, **_final_columns(last, th[-1]),
             "final_z": [round((m - t) / s, 2)
                         for m, s, t in zip(last.mean[:3], last.std[:3], th[-1], strict=True)],
