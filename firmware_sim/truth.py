@@ -46,20 +46,33 @@ class DamperCurve:
 
     def inverse_deviation(self, force_n: float, c_ns_per_m: float) -> float:
         """Damper velocity for a force, minus the linear velocity F/C (m/s)."""
-        f_knee = c_ns_per_m * self.knee_mps
-        if abs(force_n) <= f_knee:
-            return 0.0
-        u = np.sign(force_n) * (self.knee_mps + (abs(force_n) - f_knee)
-                                / (self.blowoff_ratio * c_ns_per_m))
-        return float(u - force_n / c_ns_per_m)
+        return float(_inverse_deviation(force_n, c_ns_per_m, self.knee_mps,
+                                        self.blowoff_ratio))
 
     def force_deviation(self, u_mps: float, c_ns_per_m: float) -> float:
         """Damper force at velocity u, minus the linear force C u (N)."""
-        if abs(u_mps) <= self.knee_mps:
-            return 0.0
-        f = np.sign(u_mps) * c_ns_per_m * (self.knee_mps
-                                           + self.blowoff_ratio * (abs(u_mps) - self.knee_mps))
-        return float(f - c_ns_per_m * u_mps)
+        return float(_force_deviation(u_mps, c_ns_per_m, self.knee_mps, self.blowoff_ratio))
+
+
+@numba.njit(cache=True)
+def _inverse_deviation(force_n: float, c_ns_per_m: float, knee_mps: float,
+                       blowoff_ratio: float) -> float:
+    """:meth:`DamperCurve.inverse_deviation` of the curve (``knee_mps``, ``blowoff_ratio``)."""
+    f_knee = c_ns_per_m * knee_mps
+    if abs(force_n) <= f_knee:
+        return 0.0
+    u = np.sign(force_n) * (knee_mps + (abs(force_n) - f_knee) / (blowoff_ratio * c_ns_per_m))
+    return u - force_n / c_ns_per_m
+
+
+@numba.njit(cache=True)
+def _force_deviation(u_mps: float, c_ns_per_m: float, knee_mps: float,
+                     blowoff_ratio: float) -> float:
+    """:meth:`DamperCurve.force_deviation` of the curve (``knee_mps``, ``blowoff_ratio``)."""
+    if abs(u_mps) <= knee_mps:
+        return 0.0
+    f = np.sign(u_mps) * c_ns_per_m * (knee_mps + blowoff_ratio * (abs(u_mps) - knee_mps))
+    return f - c_ns_per_m * u_mps
 
 
 LATERAL_DAMPER_CURVE = DamperCurve(knee_mps=0.1, blowoff_ratio=0.25)
@@ -197,17 +210,48 @@ def _run_nonlinear(x: np.ndarray, A: np.ndarray, q: float, theta: np.ndarray,
     gamma_u = scipy.linalg.expm(aug * h)[:NX, NX:]
     L = _noise_factor(d.qd)
     csy, csay = float(theta[0]), float(theta[1])
-    i_b, i_c, i_sr, i_dpsi = IDX["y_b"], IDX["psi_b"], IDX["y_sr"], IDX["dpsi_b"]
-    half_csay = 0.5 * csay
-    for k in range(out.shape[0]):
-        out[k] = x
-        for _ in range(dampers.substeps):
-            force = p.ksry_n_per_m * (x[i_b] + p.c_m * x[i_c] - x[i_sr])
-            du = dampers.lateral.inverse_deviation(force, csy)
-            u_ay = p.lbw_m * x[i_dpsi]
-            dm = -2 * p.lbw_m * dampers.antiyaw.force_deviation(u_ay, half_csay)
-            x = d.phi @ x + gamma_u @ np.array([du, dm]) + L @ rng.standard_normal(NX)
+    idx = np.array([IDX["y_b"], IDX["psi_b"], IDX["y_sr"], IDX["dpsi_b"]])
+    curves = np.array([dampers.lateral.knee_mps, dampers.lateral.blowoff_ratio,
+                       dampers.antiyaw.knee_mps, dampers.antiyaw.blowoff_ratio])
+    consts = np.array([p.ksry_n_per_m, p.c_m, p.lbw_m, csy, 0.5 * csay])
+    x = np.array(x, dtype=float)
+    for a in range(0, out.shape[0], NONLINEAR_CHUNK):
+        b = min(out.shape[0], a + NONLINEAR_CHUNK)
+        # drawn in the order of one draw of NX per sub-step
+        z = rng.standard_normal((b - a, dampers.substeps, NX))
+        _nonlinear_steps(x, d.phi, gamma_u, L, z, idx, curves, consts, out[a:b])
     return x
+
+
+NONLINEAR_CHUNK = 1000
+"""Samples whose sub-step noise :func:`_run_nonlinear` draws at once."""
+
+
+@numba.njit(cache=True)
+def _nonlinear_steps(x: np.ndarray, phi: np.ndarray, gamma_u: np.ndarray, L: np.ndarray,
+                     z: np.ndarray, idx: np.ndarray, curves: np.ndarray, consts: np.ndarray,
+                     out: np.ndarray) -> None:
+    """Sub-steps of :func:`_run_nonlinear` over ``z`` (k, substeps, NX) unit normals, in
+    place on the state ``x`` (NX,); ``out`` (k, NX) gets each sample's state before its
+    sub-steps. ``idx``: y_b, psi_b, y_sr, dpsi_b; ``curves``: the lateral and anti-yaw
+    knee and blow-off ratio; ``consts``: ksry, c_m, lbw, Csy, Csay / 2."""
+    n = x.shape[0]
+    ksry, c_m, lbw, csy, half_csay = consts[0], consts[1], consts[2], consts[3], consts[4]
+    y = np.empty(n)
+    for k in range(z.shape[0]):
+        for i in range(n):
+            out[k, i] = x[i]
+        for s in range(z.shape[1]):
+            force = ksry * (x[idx[0]] + c_m * x[idx[1]] - x[idx[2]])
+            du = _inverse_deviation(force, csy, curves[0], curves[1])
+            dm = -2 * lbw * _force_deviation(lbw * x[idx[3]], half_csay, curves[2], curves[3])
+            for i in range(n):
+                acc = gamma_u[i, 0] * du + gamma_u[i, 1] * dm
+                for j in range(n):
+                    acc += phi[i, j] * x[j] + L[i, j] * z[k, s, j]
+                y[i] = acc
+            for i in range(n):
+                x[i] = y[i]
 
 
 def add_sensor_noise(outputs: np.ndarray, sensors: tuple[str, ...], rng: np.random.Generator,
@@ -222,11 +266,14 @@ def measured(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
              sensors: tuple[str, ...], rng: np.random.Generator, *,
              ar_paper: float = AR_PAPER_DEFAULT,
              noise_var: dict[str, float] | None = None,
-             burn_in_s: float = BURN_IN_S) -> np.ndarray:
+             burn_in_s: float = BURN_IN_S,
+             dampers: NonlinearDampers | None = None) -> np.ndarray:
     """What the sensors read (T, ny): :func:`simulate` from rest (after ``burn_in_s`` of
-    run-in; 0: the first sample is at rest), then :func:`add_sensor_noise` on the
-    ``sensors`` columns, both drawing from ``rng``."""
-    run = simulate(theta_t, speed_mps_t, fs_hz, rng, ar_paper=ar_paper, burn_in_s=burn_in_s)
+    run-in; 0: the first sample is at rest; ``dampers``: saturating damper curves, None:
+    linear), then :func:`add_sensor_noise` on the ``sensors`` columns, both drawing from
+    ``rng``."""
+    run = simulate(theta_t, speed_mps_t, fs_hz, rng, ar_paper=ar_paper, burn_in_s=burn_in_s,
+                   dampers=dampers)
     return add_sensor_noise(select(run.outputs, sensors), sensors, rng, noise_var)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from firmware_sim.studies import detection
@@ -71,6 +72,7 @@ def test_the_study_command_line_runs_a_fault_with_its_options(
     assert row["detect_s"] is not None and row["detect_s"] <= 3.0, row
     assert 0.8 <= row["located_rel"] <= 1.25, row
     assert row["wrong"] == 0 and row["before"] == 0, row
+    assert row["nonlinear_dampers"] is False and row["replaced_detections"] == [], row
 
 
 @pytest.mark.slow
@@ -90,3 +92,12 @@ def test_a_filter_the_noise_test_replaced_takes_its_detections_with_it() -> None
     assert [(n, t < filt.result.t_s) for t, n, _, _ in gone] == [("csy_ns_per_m", True)], gone
     assert len(found) == 1 and found[0][1] == "csy_ns_per_m", found
     assert 8.025 < found[0][0] < 10.5 and found[0][2] < 0.4, found
+
+
+def test_the_study_runs_the_saturating_truth_when_asked() -> None:
+    """``--nonlinear-dampers``: the same seed's record comes from the saturating truth
+    (another motion), and the row says so."""
+    _, lin = detection.fault_data(None, 1.0, 3, 1, 1.0, 0.0)
+    _, nl = detection.fault_data(None, 1.0, 3, 1, 1.0, 0.0, nonlinear=True)
+    assert lin.shape == nl.shape and np.isfinite(nl).all()
+    assert np.abs(nl - lin).max() > 0.1 * np.abs(lin).max()
