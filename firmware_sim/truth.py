@@ -195,6 +195,10 @@ def simulate(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
                     speed_mps=speed_t, fs_hz=float(fs_hz))
 
 
+NONLINEAR_CHUNK = 1000
+"""Samples whose sub-step noise :func:`_run_nonlinear` draws at once."""
+
+
 def _run_nonlinear(x: np.ndarray, A: np.ndarray, q: float, theta: np.ndarray,
                    p: VehicleParams, fs_hz: float, dampers: NonlinearDampers,
                    rng: np.random.Generator, out: np.ndarray) -> np.ndarray:
@@ -221,10 +225,6 @@ def _run_nonlinear(x: np.ndarray, A: np.ndarray, q: float, theta: np.ndarray,
         z = rng.standard_normal((b - a, dampers.substeps, NX))
         _nonlinear_steps(x, d.phi, gamma_u, L, z, idx, curves, consts, out[a:b])
     return x
-
-
-NONLINEAR_CHUNK = 1000
-"""Samples whose sub-step noise :func:`_run_nonlinear` draws at once."""
 
 
 @numba.njit(cache=True)

@@ -208,19 +208,19 @@ def test_bad_inputs_give_one_line_errors(tmp_path, cli):
 def test_dampers_whose_knees_are_never_reached_give_the_linear_truth():
     """The saturating truth's compiled sub-steps, with knees beyond any velocity, are the
     linear model: from the same state, without track input, the two runs agree sample for
-    sample; with the paper's knees the same start is another motion (the anti-yaw damper
-    is past its knee, so the bogie yaw decays more slowly)."""
+    sample. With the paper's knees the same start is another motion: the anti-yaw damper
+    is past its knee, so the bogie's yaw rate decays more slowly."""
     n = 400
     th = np.repeat(THETA_NOMINAL.as_array()[None], n, 0)
     v = np.full(n, 42.5)
     x0 = np.zeros(NX)
-    x0[IDX["dpsi_b"]] = 0.02                      # 20 mrad/s of bogie yaw: 26 mm/s at l_bw
+    x0[IDX["dpsi_b"]] = 0.02                      # 20 mrad/s of bogie yaw: 24 mm/s at l_bw
     far = NonlinearDampers(lateral=DamperCurve(1e3, 0.25), antiyaw=DamperCurve(1e3, 0.025))
     quiet = {"ar_paper": 1e-30, "x0": x0}
     lin = simulate(th, v, 1000.0, np.random.default_rng(0), **quiet)
     nl_far = simulate(th, v, 1000.0, np.random.default_rng(0), dampers=far, **quiet)
     nl = simulate(th, v, 1000.0, np.random.default_rng(0), dampers=NonlinearDampers(), **quiet)
-    scale = np.abs(lin.states).max(axis=0) + 1e-300
-    assert np.abs(nl_far.states - lin.states).max(axis=0).max() <= 1e-9 * scale.max()
-    yaw = IDX["dpsi_b"]
-    assert np.abs(nl.states[:, yaw] - lin.states[:, yaw]).max() > 0.1 * abs(x0[yaw])
+    assert np.abs(nl_far.states - lin.states).max() <= 1e-9 * np.abs(lin.states).max()
+    yaw = lin.states[:, IDX["dpsi_b"]], nl.states[:, IDX["dpsi_b"]]
+    assert np.sum(yaw[1] ** 2) > 1.2 * np.sum(yaw[0] ** 2)
+    assert np.abs(yaw[1][200:]).max() > 2.0 * np.abs(yaw[0][200:]).max()
