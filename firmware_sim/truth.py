@@ -44,20 +44,12 @@ class DamperCurve:
     knee_mps: float
     blowoff_ratio: float
 
-    def inverse_deviation(self, force_n: float, c_ns_per_m: float) -> float:
-        """Damper velocity for a force, minus the linear velocity F/C (m/s)."""
-        return float(_inverse_deviation(force_n, c_ns_per_m, self.knee_mps,
-                                        self.blowoff_ratio))
-
-    def force_deviation(self, u_mps: float, c_ns_per_m: float) -> float:
-        """Damper force at velocity u, minus the linear force C u (N)."""
-        return float(_force_deviation(u_mps, c_ns_per_m, self.knee_mps, self.blowoff_ratio))
-
 
 @numba.njit(cache=True)
 def _inverse_deviation(force_n: float, c_ns_per_m: float, knee_mps: float,
                        blowoff_ratio: float) -> float:
-    """:meth:`DamperCurve.inverse_deviation` of the curve (``knee_mps``, ``blowoff_ratio``)."""
+    """Damper velocity for a force, minus the linear velocity F/C (m/s), on the curve
+    (``knee_mps``, ``blowoff_ratio``) of :class:`DamperCurve`."""
     f_knee = c_ns_per_m * knee_mps
     if abs(force_n) <= f_knee:
         return 0.0
@@ -68,7 +60,8 @@ def _inverse_deviation(force_n: float, c_ns_per_m: float, knee_mps: float,
 @numba.njit(cache=True)
 def _force_deviation(u_mps: float, c_ns_per_m: float, knee_mps: float,
                      blowoff_ratio: float) -> float:
-    """:meth:`DamperCurve.force_deviation` of the curve (``knee_mps``, ``blowoff_ratio``)."""
+    """Damper force at velocity u, minus the linear force C u (N), on the curve
+    (``knee_mps``, ``blowoff_ratio``) of :class:`DamperCurve`."""
     if abs(u_mps) <= knee_mps:
         return 0.0
     f = np.sign(u_mps) * c_ns_per_m * (knee_mps + blowoff_ratio * (abs(u_mps) - knee_mps))

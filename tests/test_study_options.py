@@ -96,7 +96,7 @@ def test_a_filter_the_noise_test_replaced_takes_its_detections_with_it() -> None
 
 def test_the_study_runs_the_saturating_truth_when_asked() -> None:
     """``--nonlinear-dampers``: the same seed's record comes from the saturating truth
-    (another motion), and the row says so."""
+    (another motion); the command-line test above checks that a row says which truth."""
     _, lin = detection.fault_data(None, 1.0, 3, 1, 1.0, 0.0)
     _, nl = detection.fault_data(None, 1.0, 3, 1, 1.0, 0.0, nonlinear=True)
     assert lin.shape == nl.shape and np.isfinite(nl).all()

@@ -163,7 +163,7 @@ def run(Y: np.ndarray, filt: Filter, every: int = 100, held: np.ndarray | None =
 
 
 def _inner(filt: Filter) -> RBPF:
-    """The RBPF that runs now (the noise test's, which a test may replace)."""
+    """The RBPF that runs now (inside the noise test, which may replace it)."""
     return filt.inner if isinstance(filt, NoiseCheckedStart) else filt
 
 
