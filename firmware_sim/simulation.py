@@ -45,6 +45,13 @@ class SimConfig:
     nodes: tuple[str, ...] = ("WSN", "BGN", "BDN", "VEH")
     noise_scale: float = 1.0
     """Sensor noise std relative to the paper's Qv (``SENSOR_NOISE_VAR``)."""
+    noise_by_sample: bool = False
+    """Each node draws its sensor noise from its own stream, one row per sample number,
+    so a sample's noise does not depend on any node's clock: runs that differ only in
+    their node clocks (phase, drift) carry the same noise on the same sample. False (the
+    default, and every run before 2026-11-29's tenth session) draws from one stream that
+    all nodes share in block order, so a drift, which changes how many samples a block
+    holds, draws another noise realisation."""
     second_sender: str | None = None
     """A second node sending the same message as this one (a masquerader with valid CRCs,
     its own clock, alive counter and SampleIdx ``second_sender_idx_offset`` ahead, values
@@ -77,9 +84,9 @@ class Simulation:
         self.config = config
         self.params = params or VehicleParams()
         codec = default_codec()
-        seeds = np.random.SeedSequence(config.seed).spawn(4)
+        seeds = np.random.SeedSequence(config.seed).spawn(5)
         self._rng_truth, self._rng_noise, self._rng_bus, rng_clock = (
-            np.random.default_rng(s) for s in seeds)
+            np.random.default_rng(s) for s in seeds[:4])
         self.nodes: list[NodeSpec] = [n for n in NODES if n.node in config.nodes]
         self._idx_offset: dict[str, int] = {}
         self._gain: dict[str, float] = {}
@@ -97,6 +104,8 @@ class Simulation:
             self.packers[n.node] = FramePacker(codec.cantools_message(n.message),
                                                codec.message(n.message).data_id)
         self.states = {n.node: NodeState() for n in self.nodes}
+        self._rng_node_noise = {n.node: np.random.default_rng(s) for n, s in
+                                zip(self.nodes, seeds[4].spawn(len(self.nodes)), strict=True)}
         self.records = {n.node: NodeRecord() for n in self.nodes} if record else None
         self._stuck: dict[str, dict[str, float]] = {}
         self._frozen: dict[str, int] = {}
@@ -146,13 +155,19 @@ class Simulation:
         state.next_k = int(k[-1]) + 1
         t_true = clock.sample_time_s(k, node.period_s)
         values: dict[str, np.ndarray] = {}
+        sensed = [q for q, _signal in node.signals if q in SENSORS_5]
+        unit: dict[str, np.ndarray] = {}
+        if cfg.noise_by_sample:      # row i: sample k[i], whatever the blocks hold
+            rows = self._rng_node_noise[node.node].standard_normal((len(k), len(sensed)))
+            unit = dict(zip(sensed, rows.T, strict=True))
         for quantity, _signal in node.signals:
             if quantity in SENSORS_5:
                 col = SENSORS_5.index(quantity)
                 clean = np.interp(t_true, t_grid, outputs[:, col])
-                std = float(np.sqrt(SENSOR_NOISE_VAR[quantity])) * self.config.noise_scale
-                values[quantity] = (clean * self._gain.get(node.node, 1.0)
-                                    + self._rng_noise.standard_normal(len(k)) * std)
+                std = float(np.sqrt(SENSOR_NOISE_VAR[quantity])) * cfg.noise_scale
+                draw = (unit[quantity] if cfg.noise_by_sample
+                        else self._rng_noise.standard_normal(len(k)))
+                values[quantity] = clean * self._gain.get(node.node, 1.0) + draw * std
             elif quantity == "speed":
                 values[quantity] = np.interp(t_true, t_grid, speed)
                 step_m = values[quantity] * node.period_s

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from dbc import DBC_PATH
+from firmware_sim.nodes import MIN_LATENCY_S, NodeClock
 from firmware_sim.output import write_log
 from firmware_sim.scenarios import SCENARIOS, get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
 from firmware_sim.truth import DamperCurve, NonlinearDampers, simulate
 from gateway.can.codec import default_codec
 from gateway.errors import FrameError, InputError
-from gateway.model.vehicle import IDX, NX, THETA_NOMINAL
+from gateway.model.vehicle import IDX, NX, SENSOR_NOISE_VAR, THETA_NOMINAL
 from gateway.offline.interchange import write_csv
 
 DB = cantools.database.load_file(str(DBC_PATH), strict=True)
@@ -80,6 +81,71 @@ def test_same_seed_same_frames_and_other_seed_differs():
     _, c = _run("nominal", 1.0, seed=8)
     assert [(m.timestamp, bytes(m.data)) for m in a] == [(m.timestamp, bytes(m.data)) for m in b]
     assert [bytes(m.data) for m in a] != [bytes(m.data) for m in c]
+
+
+
+def _unit_noise(noise_by_sample: bool, clock: NodeClock | None) -> dict[str, dict[int, float]]:
+    """Per lateral sensor, sample number -> its noise in units of the sensor's std: a
+    4 s nominal run (seed 9) with the lateral nodes on ``clock`` (None: the seed's
+    own), less the same run with no noise."""
+    recs = []
+    for scale in (1.0, 0.0):
+        sim = Simulation(get_scenario("nominal"), SimConfig(
+            duration_s=4.0, seed=9, noise_scale=scale, noise_by_sample=noise_by_sample),
+            record=True)
+        for node in ("WSN", "BGN", "BDN"):
+            sim.clocks[node] = clock if clock is not None else sim.clocks[node]
+        list(sim.messages())
+        assert sim.records is not None
+        recs.append(sim.records)
+    noisy, clean = recs
+    out = {}
+    for sensor in ("acc_w1", "acc_w2", "acc_b", "gyro_b", "acc_bd"):
+        node = NODE_OF[sensor]
+        k = np.concatenate(noisy[node].sample_idx)
+        e = (noisy[node].array(sensor) - clean[node].array(sensor)) / np.sqrt(
+            SENSOR_NOISE_VAR[sensor])
+        out[sensor] = dict(zip(k.tolist(), e.tolist(), strict=True))
+    return out
+
+
+def test_noise_by_sample_gives_each_sample_its_noise_whatever_the_node_clocks():
+    """Issue 15, node phase: the timing study compares runs that differ only in their
+    node clocks. With ``noise_by_sample`` a sample carries the same noise on aligned
+    and on drifting clocks (-50 ppm from 0.02 ms: the first 1 s block holds 1001
+    samples instead of 1000); with the shared stream the drift draws other noise."""
+    aligned = NodeClock(0.0, 1e-3 - MIN_LATENCY_S)
+    drifting = NodeClock(-50.0, 2e-5)
+    for by_sample in (True, False):
+        a = _unit_noise(by_sample, aligned)
+        d = _unit_noise(by_sample, drifting)
+        for sensor in a:
+            common = sorted(set(a[sensor]) & set(d[sensor]))
+            assert len(common) > 3990
+            ea = np.array([a[sensor][k] for k in common])
+            ed = np.array([d[sensor][k] for k in common])
+            assert 0.9 < ea.std() < 1.1 and 0.9 < ed.std() < 1.1    # unit noise, both
+            if by_sample:
+                np.testing.assert_allclose(ed, ea, rtol=0, atol=1e-6, err_msg=sensor)
+            else:
+                assert np.abs(ed - ea).max() > 1.0, sensor
+
+
+def test_noise_by_sample_keeps_the_truth_and_the_bus_of_the_shared_stream():
+    """The option changes the sensor noise only: the same seed's truth (the clean
+    values), sample instants and bus timestamps are those of the default."""
+    runs = {}
+    for by_sample in (False, True):
+        sim = Simulation(get_scenario("nominal"), SimConfig(
+            duration_s=2.0, seed=5, noise_scale=0.0, noise_by_sample=by_sample), record=True)
+        runs[by_sample] = (sim, list(sim.messages()))
+    (s0, m0), (s1, m1) = runs[False], runs[True]
+    assert [(m.timestamp, m.arbitration_id) for m in m0] == [
+        (m.timestamp, m.arbitration_id) for m in m1]
+    assert s0.records is not None and s1.records is not None
+    for sensor, node in NODE_OF.items():
+        np.testing.assert_array_equal(s0.records[node].array(sensor),
+                                      s1.records[node].array(sensor))
 
 
 def _window(messages, node_id: int, duration_s: float):

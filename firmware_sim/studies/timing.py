@@ -11,21 +11,23 @@ given ``[resampler] interpolation``:
   case for linear interpolation;
 - ``phase``: each lateral node at its own random phase in [0, 1 ms), no drift;
 - ``drift``: each at its own random phase and drift (+-50 ppm): the phase then sweeps
-  through the grid during the run. The sensor noise is drawn per node per block, so
-  a drift changes how many samples each block draws: another noise realisation
-  (compare it statistically, not pair by pair).
+  through the grid during the run.
 
-Without drift every case draws the same noise for the same sample, so ``half`` and
-``phase`` against ``aligned`` of the same seed is the same data at another node timing.
+Every node draws its noise per sample number (``SimConfig.noise_by_sample``, since
+2026-11-29's tenth session), so every case of a seed is the same data at another node
+timing, ``drift`` included: compare them pair by pair. (Before, the nodes shared one
+noise stream in block order and a drift drew another noise realisation.)
 Rows (JSON lines on stdout): the final estimate's error against the truth at the start
 (``rel``, ``z``) and at the end (``rel_end``: a fault scenario's new values), the stated
 sigma per parameter, and the alerts raised (data time, parameter, severity; ``t0_s``
 the first estimate's data time). ``summary FILE...`` prints the table of docs/resampler.md
 ("Node timing"): mean ± standard error over seeds, truth within 2 sigma, and the paired
-difference to ``aligned``. Data seed = filter seed = the seed; the clocks' random
-draws from 10000 + seed. ``--bus-loss P`` drops each frame of the log with probability P
-(draws from 20000 + seed; rows record it): a lossy bus through the whole replay path.
-Not used by the service; a measuring tool.
+difference to ``aligned``; rows of several filter seeds (``--filter-seeds K``) are
+averaged per seed and case first, which takes the filter's own Monte Carlo error out
+of the pairs. Data seed = the seed; filter seed = the seed, or ``100 * seed + k`` for
+k = 1..K; the clocks' random draws from 10000 + seed. ``--bus-loss P`` drops each frame
+of the log with probability P (draws from 20000 + seed; rows record it): a lossy bus
+through the whole replay path. Not used by the service; a measuring tool.
 """
 
 from __future__ import annotations
@@ -82,9 +84,11 @@ def _sensor_noise(interpolation: str) -> str:
 
 def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: float,
              particles: int, scenario: str, workdir: Path, bus_loss: float = 0.0,
-             mode: str = "fast") -> dict[str, Any]:
-    """One replay: the final estimate against the truth."""
-    sim = Simulation(get_scenario(scenario), SimConfig(duration_s=seconds, seed=seed))
+             mode: str = "fast", filter_seed: int | None = None) -> dict[str, Any]:
+    """One replay: the final estimate against the truth. The estimator's seed is
+    ``filter_seed``, or the data's ``seed`` when None."""
+    sim = Simulation(get_scenario(scenario),
+                     SimConfig(duration_s=seconds, seed=seed, noise_by_sample=True))
     truth = sim.scenario.theta(np.array([0.0]), seconds)[0]
     truth_end = sim.scenario.theta(np.array([seconds]), seconds)[0]
     set_clocks(sim, case, np.random.default_rng(10_000 + seed))
@@ -97,11 +101,14 @@ def run_case(seed: int, case: str, interpolation: str, sensors: int, seconds: fl
         base, resampler=dataclasses.replace(base.resampler, interpolation=interpolation),
         estimator=dataclasses.replace(base.estimator, particles=particles, sensors=sensors,
                                       mode=mode,
-                                      seed=seed, sensor_noise=_sensor_noise(interpolation)))
+                                      seed=seed if filter_seed is None else filter_seed,
+                                      sensor_noise=_sensor_noise(interpolation)))
     wall0 = time.monotonic()
     result = replay(log_path, cfg)
     est = result.estimates[-1]
-    return {"seed": seed, "case": case, "interpolation": interpolation, "sensors": sensors,
+    return {"seed": seed, "filter_seed": seed if filter_seed is None else filter_seed,
+            "noise": "by_sample", "case": case, "interpolation": interpolation,
+            "sensors": sensors,
             "particles": particles, "scenario": scenario, "bus_loss": bus_loss, "mode": mode,
             "t_s": est.t_s,
             "rel": [est.mean[i] / truth[i] - 1 for i in range(3)],
@@ -135,21 +142,34 @@ def summary(rows: Sequence[dict[str, Any]]) -> str:
         out.append(f"| {key[0]} | {key[1]} | {key[2]} | {len(g)} | "
                    + " / ".join(cell(rel[:, i]) for i in range(3)) + " | "
                    + " / ".join(f"{100 * x:.0f} %" for x in inside) + " |")
-    ref = {(r["sensors"], r["interpolation"], r["seed"]): r for r in rows
-           if r["case"] == "aligned"}
-    out += ["", f"| sensors | interpolation | case − aligned, same seed | pairs "
-                f"| difference % (mean ± s.e.): {names} | largest |", "|---|---|---|---|---|---|"]
+    # each (sensors, interpolation, seed, case): rel by filter seed, and their mean
+    runs: dict[tuple[int, str, int, str], dict[int, np.ndarray]] = defaultdict(dict)
+    for r in rows:
+        runs[(r["sensors"], r["interpolation"], r["seed"], r["case"])][
+            r.get("filter_seed", r["seed"])] = 100 * np.asarray(r["rel"])
+    out += ["", f"| sensors | interpolation | case − aligned, same seed | pairs | filter seeds "
+                f"| difference % (mean ± s.e.): {names} | largest | largest, one filter seed |",
+            "|---|---|---|---|---|---|---|---|"]
     for key in sorted(groups):
         if key[2] == "aligned":
             continue
-        pairs = [(r, ref[(r["sensors"], r["interpolation"], r["seed"])]) for r in groups[key]
-                 if (r["sensors"], r["interpolation"], r["seed"]) in ref]
-        if not pairs:
+        mean_d, one_d, k_seeds = [], [], set()
+        for (ns, interp, seed, case), by_seed in sorted(runs.items()):
+            ref = runs.get((ns, interp, seed, "aligned"))
+            if (ns, interp, case) != key or ref is None:
+                continue
+            mean_d.append(np.mean(list(by_seed.values()), 0) - np.mean(list(ref.values()), 0))
+            one_d += [by_seed[f] - ref[f] for f in by_seed if f in ref]
+            k_seeds.add(len(by_seed))
+        if not mean_d:
             continue
-        d = 100 * np.array([np.subtract(a["rel"], b["rel"]) for a, b in pairs])
+        d, one = np.array(mean_d), np.abs(np.array(one_d))
         out.append(f"| {key[0]} | {key[1]} | {key[2]} | {len(d)} | "
+                   + "/".join(str(k) for k in sorted(k_seeds)) + " | "
                    + " / ".join(cell(d[:, i]) for i in range(3)) + " | "
-                   + " / ".join(f"{np.abs(d[:, i]).max():.2f}" for i in range(3)) + " |")
+                   + " / ".join(f"{np.abs(d[:, i]).max():.2f}" for i in range(3)) + " | "
+                   + (" / ".join(f"{one[:, i].max():.2f}" for i in range(3)) if len(one)
+                      else "—") + " |")
     return "\n".join(out)
 
 
@@ -180,15 +200,22 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="share of the log's frames dropped (0)")
     p.add_argument("--mode", choices=("fast", "exact"), default="fast",
                    help="the estimator's mode (fast)")
+    p.add_argument("--filter-seeds", type=int, default=0, metavar="K",
+                   help="replay each log with the filter seeds 100 * seed + 1..K "
+                        "(0: the data's seed, once)")
     args = p.parse_args(argv)
+    if args.filter_seeds < 0:
+        p.error(f"expected --filter-seeds K >= 0, got {args.filter_seeds}")
     with tempfile.TemporaryDirectory(prefix="railgw-timing-") as tmp:
         for seed in args.seeds:
             for case in args.cases.split(","):
                 for interpolation in args.interpolation.split(","):
-                    row = run_case(seed, case, interpolation, args.sensors, args.seconds,
-                                   args.particles, args.scenario, Path(tmp), args.bus_loss,
-                                   args.mode)
-                    print(json.dumps(row), flush=True)
+                    for filter_seed in ([100 * seed + k for k in range(1, args.filter_seeds + 1)]
+                                        or [None]):
+                        row = run_case(seed, case, interpolation, args.sensors, args.seconds,
+                                       args.particles, args.scenario, Path(tmp),
+                                       args.bus_loss, args.mode, filter_seed)
+                        print(json.dumps(row), flush=True)
     return 0
 
 
