@@ -101,3 +101,28 @@ def test_the_study_runs_the_saturating_truth_when_asked() -> None:
     _, nl = detection.fault_data(None, 1.0, 3, 1, 1.0, 0.0, nonlinear=True)
     assert lin.shape == nl.shape and np.isfinite(nl).all()
     assert np.abs(nl - lin).max() > 0.1 * np.abs(lin).max()
+
+
+def test_the_timing_summary_pairs_each_case_with_aligned_by_the_mean_of_its_filter_seeds(
+) -> None:
+    """``timing summary`` of rows replayed with K filter seeds: each seed's case and its
+    aligned run are averaged over the filter seeds before they are paired (the node
+    phase target is on the timing, not on the filter's Monte Carlo error); the largest
+    difference of one filter seed pairs rows of the same filter seed."""
+    from firmware_sim.studies.timing import summary
+
+    def row(seed: int, case: str, k: int, rel: list[float]) -> dict[str, object]:
+        return {"seed": seed, "filter_seed": 100 * seed + k, "case": case,
+                "interpolation": "sinc", "sensors": 5, "rel": rel, "z": [0.0, 0.0, 0.0]}
+
+    rows = [row(1, "aligned", 1, [0.010, 0.0, 0.0]), row(1, "aligned", 2, [0.030, 0.0, 0.0]),
+            row(1, "drift", 1, [0.030, 0.0, 0.0]), row(1, "drift", 2, [0.014, 0.0, 0.0]),
+            row(2, "aligned", 1, [0.0, 0.0, 0.002]), row(2, "aligned", 2, [0.0, 0.0, 0.004]),
+            row(2, "drift", 1, [0.0, 0.0, 0.006]), row(2, "drift", 2, [0.0, 0.0, 0.008])]
+    line = next(x for x in summary(rows).splitlines() if x.startswith("| 5 | sinc | drift | 2 |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[4] == "2"                                  # filter seeds per case
+    # Csy: seed 1 means 2.2 % - 2.0 % = +0.2, seed 2 0; λ: seed 2 0.7 % - 0.3 % = +0.4
+    assert cells[5] == "+0.10 ± 0.10 / +0.00 ± 0.00 / +0.20 ± 0.20"
+    assert cells[6] == "0.20 / 0.00 / 0.40"
+    assert cells[7] == "2.00 / 0.00 / 0.40"                # seed 1, filter seed 1: 3 - 1 %
