@@ -5,6 +5,13 @@ generated at the estimator's rate match the paper's Sec. 4.2 set-up. Time-varyin
 theta(t) and v(t) are piecewise constant per sample; the discretisation is recomputed
 (and cached) whenever they change.
 
+The track input is continuous white noise by default (``track_input="white"``). An
+independent implementation could follow the paper's literal eqs. (6)-(7) instead: the
+track velocities held constant over each sample and entering through the zero-order-hold
+Gamma. ``track_input="held"`` is that convention, with each held value's variance Q / T,
+so that the track's spectrum below the sample rate is the same (at 1 kHz: the paper's
+Qw = Q T with Ar as printed, model notes section 5); the filter's model stays white.
+
 Optional non-linear dampers (paper Figs. 6-7): the damper force-velocity curves are
 bilinear, steep up to a knee velocity and then "blow-off" with a smaller slope. The
 deviation from the linear damper enters as an input held over a sub-step of T/10.
@@ -141,6 +148,10 @@ def _validate(theta_t: np.ndarray, speed_t: np.ndarray, fs_hz: float) -> None:
         raise InputError("expected positive speeds and parameters throughout the run")
 
 
+TRACK_INPUTS = ("white", "held")
+"""How the truth's track velocities enter (module docstring): continuous white noise
+(the filter's model) or held over each sample (the paper's literal form)."""
+
 BURN_IN_S = 10.0
 """Run-in (s) before a simulated run's first sample, so that it starts in (near)
 stationary vibration."""
@@ -150,18 +161,23 @@ def simulate(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
              rng: np.random.Generator, *, params: VehicleParams | None = None,
              ar_paper: float = AR_PAPER_DEFAULT, burn_in_s: float = BURN_IN_S,
              dampers: NonlinearDampers | None = None,
-             x0: np.ndarray | None = None) -> TruthRun:
+             x0: np.ndarray | None = None, track_input: str = "white") -> TruthRun:
     """Simulate the truth at ``fs_hz`` for theta_t (T, 3) and speed (T,).
 
     Without ``x0`` the run starts from rest and first runs ``burn_in_s`` at the initial
     conditions so that it starts in (near) stationary vibration. With ``x0`` (17,) the
     first state is x0 and there is no burn-in: chain blocks by passing the last state
-    of one block as x0 of the next (that sample then appears in both).
+    of one block as x0 of the next (that sample then appears in both). ``track_input``:
+    one of :data:`TRACK_INPUTS` (module docstring); "held" only with linear dampers.
     """
     p = params or VehicleParams()
     theta_t = np.asarray(theta_t, dtype=float)
     speed_t = np.asarray(speed_mps_t, dtype=float)
     _validate(theta_t, speed_t, fs_hz)
+    if track_input not in TRACK_INPUTS or (track_input == "held" and dampers is not None):
+        raise InputError(f"expected track_input from {TRACK_INPUTS} ('held' with linear "
+                         f"dampers only), got {track_input!r}"
+                         + (" with saturating dampers" if dampers is not None else ""))
     n_burn = 0 if x0 is not None else int(round(burn_in_s * fs_hz))
     theta_all = np.concatenate([np.repeat(theta_t[:1], n_burn, axis=0), theta_t])
     speed_all = np.concatenate([np.repeat(speed_t[:1], n_burn), speed_t])
@@ -173,7 +189,10 @@ def simulate(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
         q = track_intensity(ar_paper, float(speed_all[a]))
         if dampers is None:
             d = discretize(A, G, q, 1.0 / fs_hz)
-            noise = rng.standard_normal((b - a, NX)) @ _noise_factor(d.qd).T
+            if track_input == "white":
+                noise = rng.standard_normal((b - a, NX)) @ _noise_factor(d.qd).T
+            else:         # each held value N(0, q fs): the same spectrum below fs / 2
+                noise = rng.standard_normal((b - a, G.shape[1])) * np.sqrt(q * fs_hz) @ d.gamma.T
             _propagate(x, d.phi, noise, states[a:b])
             x = d.phi @ states[b - 1] + noise[-1]
         else:
@@ -260,13 +279,14 @@ def measured(theta_t: np.ndarray, speed_mps_t: np.ndarray, fs_hz: float,
              ar_paper: float = AR_PAPER_DEFAULT,
              noise_var: dict[str, float] | None = None,
              burn_in_s: float = BURN_IN_S,
-             dampers: NonlinearDampers | None = None) -> np.ndarray:
+             dampers: NonlinearDampers | None = None,
+             track_input: str = "white") -> np.ndarray:
     """What the sensors read (T, ny): :func:`simulate` from rest (after ``burn_in_s`` of
     run-in; 0: the first sample is at rest; ``dampers``: saturating damper curves, None:
-    linear), then :func:`add_sensor_noise` on the ``sensors`` columns, both drawing from
-    ``rng``."""
+    linear; ``track_input``: one of :data:`TRACK_INPUTS`), then :func:`add_sensor_noise`
+    on the ``sensors`` columns, both drawing from ``rng``."""
     run = simulate(theta_t, speed_mps_t, fs_hz, rng, ar_paper=ar_paper, burn_in_s=burn_in_s,
-                   dampers=dampers)
+                   dampers=dampers, track_input=track_input)
     return add_sensor_noise(select(run.outputs, sensors), sensors, rng, noise_var)
 
 

@@ -290,3 +290,42 @@ def test_dampers_whose_knees_are_never_reached_give_the_linear_truth():
     yaw = lin.states[:, IDX["dpsi_b"]], nl.states[:, IDX["dpsi_b"]]
     assert np.sum(yaw[1] ** 2) > 1.2 * np.sum(yaw[0] ** 2)
     assert np.abs(yaw[1][200:]).max() > 2.0 * np.abs(yaw[0][200:]).max()
+
+
+def test_a_held_track_input_enters_through_gamma_with_the_white_inputs_spectrum():
+    """``track_input="held"`` (the paper's literal eqs. (6)-(7), an independent
+    implementation's likely convention): each step's state noise lies in the span of the
+    zero-order-hold Gamma (two held track velocities), and each held value has variance
+    q fs, so the track's spectrum below fs / 2 is the white input's (whose state noise
+    has full rank: Van Loan). With saturating dampers it is refused in one line."""
+    from gateway.model.vehicle import (
+        AR_PAPER_DEFAULT,
+        THETA_SEC42,
+        VehicleParams,
+        discretize,
+        input_matrix,
+        system_matrix,
+        track_intensity,
+    )
+
+    fs, v, n = 1000.0, 42.5, 20_000
+    theta = np.repeat(THETA_SEC42.as_array()[None], n, 0)
+    A = system_matrix(VehicleParams(), THETA_SEC42, v)
+    q = track_intensity(AR_PAPER_DEFAULT, v)
+    d = discretize(A, input_matrix(), q, 1 / fs)
+    for track_input in ("held", "white"):
+        x = simulate(theta, np.full(n, v), fs, np.random.default_rng(2),
+                     track_input=track_input).states
+        w = x[1:] - x[:-1] @ d.phi.T                                   # (n - 1, 17)
+        b, *_ = np.linalg.lstsq(d.gamma, w.T, rcond=None)             # (2, n - 1)
+        off_span = np.linalg.norm(w.T - d.gamma @ b) / np.linalg.norm(w)
+        if track_input == "held":
+            assert off_span < 1e-9
+            assert abs(b.var(axis=1) / (q * fs) - 1).max() < 0.03, b.var(axis=1) / (q * fs)
+        else:
+            assert off_span > 0.1
+    with pytest.raises(InputError, match="expected track_input from"):
+        simulate(theta[:10], np.full(10, v), fs, np.random.default_rng(2),
+                 track_input="held", dampers=NonlinearDampers())
+    with pytest.raises(InputError, match="got 'zoh'"):
+        simulate(theta[:10], np.full(10, v), fs, np.random.default_rng(2), track_input="zoh")

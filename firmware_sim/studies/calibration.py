@@ -54,7 +54,7 @@ import numpy as np
 from firmware_sim.studies.arguments import kernel_delta_arg
 from firmware_sim.studies.filtering import FS_HZ, V_MPS, FilterOptions, run, service_filter
 from firmware_sim.studies.holds import holds
-from firmware_sim.truth import BURN_IN_S, measured
+from firmware_sim.truth import BURN_IN_S, TRACK_INPUTS, measured
 from gateway.estimator.rbpf_config import PAPER_DELTA, RBPFConfig
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
@@ -67,14 +67,16 @@ PAPER_THETA = {"paper": THETA_SEC42, "nominal": THETA_NOMINAL}
 
 
 def record(theta: np.ndarray, sensors: int, data_seed: int, seconds: float,
-           from_rest: bool = False, speed_mps: float = V_MPS) -> np.ndarray:
+           from_rest: bool = False, speed_mps: float = V_MPS,
+           track_input: str = "white") -> np.ndarray:
     """Noisy measurements (T, ny) of the linear truth at ``theta`` (3,), 1 kHz,
-    ``speed_mps``, in stationary vibration from the first sample, or ``from_rest``."""
+    ``speed_mps``, in stationary vibration from the first sample, or ``from_rest``;
+    ``track_input`` one of :data:`firmware_sim.truth.TRACK_INPUTS`."""
     n = int(round(seconds * FS_HZ))
     return measured(np.repeat(np.asarray(theta, dtype=float)[None], n, 0),
                     np.full(n, speed_mps), FS_HZ, sensor_set(sensors),
                     np.random.default_rng(data_seed),
-                    burn_in_s=0.0 if from_rest else BURN_IN_S)
+                    burn_in_s=0.0 if from_rest else BURN_IN_S, track_input=track_input)
 
 
 def box_theta(seed: int) -> np.ndarray:
@@ -101,8 +103,8 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              moves_drop_null: bool | None = None, from_rest: bool = False,
              start_ramp_s: float | None = None, hold: tuple[float, float] | None = None,
              speed_mps: float = V_MPS, start_ramp_m: float | None = None,
-             theta_name: str = "paper", kernel_delta: float | None = None
-             ) -> list[dict[str, Any]]:
+             theta_name: str = "paper", kernel_delta: float | None = None,
+             track_input: str = "white") -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
@@ -110,10 +112,12 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
     the truth starts at rest; ``hold`` (start, length) in s: no updates then, as the
     gate holds them in a curve; ``speed_mps``: the vehicle's constant speed;
     ``theta_name``: the paper study's vehicle, a key of :data:`PAPER_THETA`;
-    ``kernel_delta``: the service's ``[estimator] kernel_delta`` (None: its default)."""
+    ``kernel_delta``: the service's ``[estimator] kernel_delta`` (None: its default);
+    ``track_input``: how the truth's track velocities enter (:data:`TRACK_INPUTS`)."""
     theta = PAPER_THETA[theta_name].as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
-    Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps)
+    Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps,
+               track_input)
     filt = service_filter(sensors, seed, FilterOptions(
         particles=particles, mode=mode, moves_drop_null=moves_drop_null,
         start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m, kernel_delta=kernel_delta))
@@ -130,7 +134,7 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
             "moves_drop_null": filt.config.moves_drop_null,
             "from_rest": from_rest, "start_ramp_s": filt.config.start_ramp_s,
             "start_ramp_m": filt.config.start_ramp_m, "kernel_delta": filt.config.delta,
-            "hold": None if hold is None else list(hold),
+            "hold": None if hold is None else list(hold), "track_input": track_input,
             "particles": particles, "truth": theta.tolist(), "mean": m.tolist(),
             "std": s.tolist(), "z": np.round((m - theta) / s, 3).tolist(),
             "err_pct": np.round(100 * (m - theta) / theta, 3).tolist(),
@@ -146,7 +150,8 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
 
 
 CASE_FIELDS = ("study", "theta_name", "moves_drop_null", "start_ramp_s", "from_rest",
-               "sensors", "mode", "hold", "speed_mps", "start_ramp_m", "kernel_delta")
+               "sensors", "mode", "hold", "speed_mps", "start_ramp_m", "kernel_delta",
+               "track_input")
 
 
 def case_of(r: dict[str, Any]) -> tuple[Any, ...]:
@@ -155,7 +160,8 @@ def case_of(r: dict[str, Any]) -> tuple[Any, ...]:
             bool(r.get("moves_drop_null", False)), float(r.get("start_ramp_s", 0.0)),
             bool(r.get("from_rest", False)), r["sensors"], r.get("mode", "fast"),
             str(r.get("hold")), float(r.get("speed_mps", V_MPS)),
-            float(r.get("start_ramp_m", 0.0)), float(r.get("kernel_delta", PAPER_DELTA)))
+            float(r.get("start_ramp_m", 0.0)), float(r.get("kernel_delta", PAPER_DELTA)),
+            r.get("track_input", "white"))
 
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -242,6 +248,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--hold", type=float, nargs=2, default=None, metavar=("AT_S", "FOR_S"),
                     help="no updates from AT_S for FOR_S seconds, as the gate holds them in "
                          "a curve (default: none)")
+    ap.add_argument("--track-input", choices=TRACK_INPUTS, default="white",
+                    help="how the truth's track velocities enter: continuous white noise "
+                         "(the filter's model, default) or held over each sample (the "
+                         "paper's literal eqs. (6)-(7))")
     args = ap.parse_args(argv)
     if not 0 < args.speed_mps <= 150:
         ap.error(f"expected 0 < --speed-mps <= 150 m/s, got {args.speed_mps}")
@@ -267,7 +277,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 hold=None if args.hold is None else tuple(args.hold),
                                 speed_mps=args.speed_mps,
                                 start_ramp_m=args.start_ramp_m, theta_name=args.theta,
-                                kernel_delta=args.kernel_delta):
+                                kernel_delta=args.kernel_delta,
+                                track_input=args.track_input):
                 print(json.dumps(row), flush=True)
     return 0
 
