@@ -66,7 +66,7 @@ from firmware_sim.studies.filtering import (
     service_filter,
 )
 from firmware_sim.studies.holds import holds, periodic_holds
-from firmware_sim.truth import SENSOR_NOISE_VAR, NonlinearDampers, measured
+from firmware_sim.truth import SENSOR_NOISE_VAR, TRACK_INPUTS, NonlinearDampers, measured
 from gateway.errors import InputError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
 from gateway.records import Estimate
@@ -79,13 +79,14 @@ DATA_SEED_OFFSET = 2000
 
 def fault_data(parameter: int | None, factor: float, sensors: int, seed: int,
                seconds: float, fault_at_s: float, noise_scale: float = 1.0,
-               speed_mps: float = V_MPS, nonlinear: bool = False
-               ) -> tuple[np.ndarray, np.ndarray]:
+               speed_mps: float = V_MPS, nonlinear: bool = False,
+               track_input: str = "white") -> tuple[np.ndarray, np.ndarray]:
     """Truth theta (T, 3) and noisy measurements (T, ny) at 1 kHz and ``speed_mps``;
     ``noise_scale`` multiplies the sensor noise's std (the filter keeps the model's);
     ``nonlinear``: the dampers follow the saturating curves of the paper's Figs. 6-7
     (:class:`firmware_sim.truth.NonlinearDampers`, scaled with theta: a failed damper
-    loses force at every velocity) instead of the linear model's."""
+    loses force at every velocity) instead of the linear model's; ``track_input``: how
+    the truth's track velocities enter (:data:`firmware_sim.truth.TRACK_INPUTS`)."""
     n = int(round(seconds * FS_HZ))
     th = np.repeat(THETA_NOMINAL.as_array()[None], n, 0)
     if parameter is not None:
@@ -93,7 +94,8 @@ def fault_data(parameter: int | None, factor: float, sensors: int, seed: int,
     var = {k: v * noise_scale**2 for k, v in SENSOR_NOISE_VAR.items()}
     return th, measured(th, np.full(n, speed_mps), FS_HZ, sensor_set(sensors),
                         np.random.default_rng(DATA_SEED_OFFSET + seed), noise_var=var,
-                        dampers=NonlinearDampers() if nonlinear else None)
+                        dampers=NonlinearDampers() if nonlinear else None,
+                        track_input=track_input)
 
 
 def without(Y: np.ndarray, sensors: int, dead: Sequence[str]) -> np.ndarray:
@@ -125,7 +127,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
               fault_at_s: float, options: FilterOptions | None = None,
               noise_scale: float = 1.0, hold_at_s: Sequence[float] = (), hold_s: float = 3.0,
               dead: Sequence[str] = (), speed_mps: float = V_MPS,
-              nonlinear: bool = False) -> dict[str, Any]:
+              nonlinear: bool = False, track_input: str = "white") -> dict[str, Any]:
     """One abrupt fault: ``parameter`` times ``factor`` at ``fault_at_s`` in a record of
     ``seconds`` (data seed ``2000 + seed``, at ``speed_mps``, the sensor noise's std times
     ``noise_scale``, the ``dead`` sensors missing, holds of ``hold_s`` from each of
@@ -133,7 +135,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     the row's columns are the module's."""
     options = options or FilterOptions()
     th, Y = fault_data(parameter, factor, sensors, seed, seconds, fault_at_s, noise_scale,
-                       speed_mps, nonlinear)
+                       speed_mps, nonlinear, track_input)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     gone: list[Found] = []
@@ -149,7 +151,7 @@ def fault_row(parameter: int, factor: float, sensors: int, seed: int, *, seconds
     right = [f for f in found if f[0] > fault_at_s and f[1] == name]
     return {"what": "fault", "parameter": name, "factor": factor, "sensors": sensors,
             "speed_mps": speed_mps, "noise_scale": noise_scale, "nonlinear_dampers": nonlinear,
-            **filter_columns(filt),
+            "track_input": track_input, **filter_columns(filt),
             "hold_at_s": list(hold_at_s) or None, "hold_s": hold_s if hold_at_s else None,
             "seed": seed, "mode": options.mode, "particles": options.particles,
             "fault_at_s": fault_at_s, "dead": list(dead) or None,
@@ -177,12 +179,12 @@ def nominal_row(sensors: int, seed: int, *, seconds: float,
                 options: FilterOptions | None = None, noise_scale: float = 1.0,
                 hold_every_s: float | None = None, hold_s: float = 3.0,
                 dead: Sequence[str] = (), speed_mps: float = V_MPS,
-                nonlinear: bool = False) -> dict[str, Any]:
+                nonlinear: bool = False, track_input: str = "white") -> dict[str, Any]:
     """Healthy running for ``seconds`` (the record as in :func:`fault_row`, holds of
     ``hold_s`` every ``hold_every_s``); counts the detections and alerts (false alarms)."""
     options = options or FilterOptions()
     th, Y = fault_data(None, 1.0, sensors, seed, seconds, 0.0, noise_scale, speed_mps,
-                       nonlinear)
+                       nonlinear, track_input)
     Y = without(Y, sensors, dead)
     t0 = time.perf_counter()
     gone: list[Found] = []
@@ -193,7 +195,7 @@ def nominal_row(sensors: int, seed: int, *, seconds: float,
     return {"what": "nominal", "sensors": sensors, "speed_mps": speed_mps, "seed": seed,
             "mode": options.mode, "dead": list(dead) or None,
             "noise_scale": noise_scale, "nonlinear_dampers": nonlinear,
-            **filter_columns(filt),
+            "track_input": track_input, **filter_columns(filt),
             "hold_every_s": hold_every_s, "hold_s": hold_s if hold_every_s else None,
             "particles": options.particles, "seconds": seconds, "detections": len(found),
             "alerts": len(alerts(est)),
@@ -236,6 +238,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--nonlinear-dampers", action="store_true",
                     help="the truth's dampers saturate (the paper's Figs. 6-7 curves, scaled "
                          "with the parameter); the filter's model stays linear")
+    ap.add_argument("--track-input", choices=TRACK_INPUTS, default="white",
+                    help="how the truth's track velocities enter: continuous white noise "
+                         "(the filter's model, default) or held over each sample (the "
+                         "paper's literal eqs. (6)-(7))")
     ap.add_argument("--dead", nargs="+", default=[], metavar="SENSOR",
                     help="sensors with no value at all (a dead node), e.g. acc_w1 acc_w2")
     add_filter_options(ap)
@@ -255,7 +261,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     record: dict[str, Any] = {"noise_scale": args.noise_scale, "hold_s": args.hold_s,
                               "dead": args.dead, "speed_mps": args.speed_mps,
-                              "nonlinear": args.nonlinear_dampers}
+                              "nonlinear": args.nonlinear_dampers,
+                              "track_input": args.track_input}
     for seed in args.seeds:
         for ns in args.sensors:
             if args.what == "nominal":
