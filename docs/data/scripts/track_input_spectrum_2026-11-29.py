@@ -13,24 +13,14 @@ paper's Sec. 4.2 vehicle, 42.5 m/s, 1 kHz, from the exact transfer of the discre
 
 import numpy as np
 
-from gateway.model.vehicle import (
-    AR_PAPER_DEFAULT,
-    SENSORS_5,
-    THETA_SEC42,
-    VehicleParams,
-    discretize,
-    input_matrix,
-    output_matrix,
-    system_matrix,
-    track_intensity,
-)
+from gateway.model import vehicle as vm
 
 FS_HZ, V_MPS = 1000.0, 42.5
-A = system_matrix(VehicleParams(), THETA_SEC42, V_MPS)
-G = input_matrix()
-q = track_intensity(AR_PAPER_DEFAULT, V_MPS)
-d = discretize(A, G, q, 1 / FS_HZ)
-H = output_matrix(A, SENSORS_5)
+A = vm.system_matrix(vm.VehicleParams(), vm.THETA_SEC42, V_MPS)
+G = vm.input_matrix()
+q = vm.track_intensity(vm.AR_PAPER_DEFAULT, V_MPS)
+d = vm.discretize(A, G, q, 1 / FS_HZ)
+H = vm.output_matrix(A, vm.SENSORS_5)
 q_held = q * FS_HZ * d.gamma @ d.gamma.T
 f_hz = np.linspace(0.01, 500, 50_000)
 eye = np.eye(len(A))
@@ -40,7 +30,7 @@ for fk in f_hz:
     white.append(np.real(np.einsum("ij,jk,ik->i", T, d.qd, T.conj())))
     held.append(np.real(np.einsum("ij,jk,ik->i", T, q_held, T.conj())))
 white_a, held_a = np.array(white), np.array(held)
-print("sensors:", SENSORS_5)
+print("sensors:", vm.SENSORS_5)
 for lo, hi in [(0, 5), (5, 20), (20, 50), (50, 150), (150, 500), (0, 500)]:
     m = (f_hz >= lo) & (f_hz < hi)
     print(f"{lo}-{hi} Hz: held / white power {np.round(held_a[m].sum(0) / white_a[m].sum(0), 4)}"
