@@ -15,7 +15,19 @@ from firmware_sim.simulation import SimConfig, Simulation
 from firmware_sim.truth import DamperCurve, NonlinearDampers, simulate
 from gateway.can.codec import default_codec
 from gateway.errors import FrameError, InputError
-from gateway.model.vehicle import IDX, NX, SENSOR_NOISE_VAR, THETA_NOMINAL
+from gateway.model.vehicle import (
+    AR_PAPER_DEFAULT,
+    IDX,
+    NX,
+    SENSOR_NOISE_VAR,
+    THETA_NOMINAL,
+    THETA_SEC42,
+    VehicleParams,
+    discretize,
+    input_matrix,
+    system_matrix,
+    track_intensity,
+)
 from gateway.offline.interchange import write_csv
 
 DB = cantools.database.load_file(str(DBC_PATH), strict=True)
@@ -83,18 +95,17 @@ def test_same_seed_same_frames_and_other_seed_differs():
     assert [bytes(m.data) for m in a] != [bytes(m.data) for m in c]
 
 
-
-def _unit_noise(noise_by_sample: bool, clock: NodeClock | None) -> dict[str, dict[int, float]]:
+def _unit_noise(noise_by_sample: bool, clock: NodeClock) -> dict[str, dict[int, float]]:
     """Per lateral sensor, sample number -> its noise in units of the sensor's std: a
-    4 s nominal run (seed 9) with the lateral nodes on ``clock`` (None: the seed's
-    own), less the same run with no noise."""
+    4 s nominal run (seed 9) with the lateral nodes on ``clock``, less the same run with
+    no noise."""
     recs = []
     for scale in (1.0, 0.0):
         sim = Simulation(get_scenario("nominal"), SimConfig(
             duration_s=4.0, seed=9, noise_scale=scale, noise_by_sample=noise_by_sample),
             record=True)
         for node in ("WSN", "BGN", "BDN"):
-            sim.clocks[node] = clock if clock is not None else sim.clocks[node]
+            sim.clocks[node] = clock
         list(sim.messages())
         assert sim.records is not None
         recs.append(sim.records)
@@ -298,16 +309,6 @@ def test_a_held_track_input_enters_through_gamma_with_the_white_inputs_spectrum(
     zero-order-hold Gamma (two held track velocities), and each held value has variance
     q fs, so the track's spectrum below fs / 2 is the white input's (whose state noise
     has full rank: Van Loan). With saturating dampers it is refused in one line."""
-    from gateway.model.vehicle import (
-        AR_PAPER_DEFAULT,
-        THETA_SEC42,
-        VehicleParams,
-        discretize,
-        input_matrix,
-        system_matrix,
-        track_intensity,
-    )
-
     fs, v, n = 1000.0, 42.5, 20_000
     theta = np.repeat(THETA_SEC42.as_array()[None], n, 0)
     A = system_matrix(VehicleParams(), THETA_SEC42, v)

@@ -1,9 +1,10 @@
-"""Command-line arguments the studies share: fault cases, the kernel delta, filter options.
+"""Command-line arguments the studies share: fault cases, the kernel delta, filter options,
+the truth's track input.
 
 :func:`fault_case` and :func:`kernel_delta_arg` are argparse types; :func:`add_filter_options`
 adds the options of a :class:`firmware_sim.studies.filtering.FilterOptions` record to a
 parser and :func:`filter_options` reads them back as one, with a bad value refused as a
-one-line usage error.
+one-line usage error; :func:`add_track_input` adds ``--track-input``.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 
 from firmware_sim.studies.filtering import FilterOptions, kernel_delta_problem
+from firmware_sim.truth import TRACK_INPUTS
 from gateway.errors import InputError
 from gateway.estimator.faultbank import REDRAWS
 from gateway.model.vehicle import PARAM_NAMES
@@ -44,6 +46,15 @@ def kernel_delta_arg(text: str) -> float:
     if problem is not None:
         raise argparse.ArgumentTypeError(f"kernel delta: {problem}")
     return value
+
+
+def add_track_input(ap: argparse.ArgumentParser) -> None:
+    """``--track-input``: how the truth's track velocities enter
+    (:data:`firmware_sim.truth.TRACK_INPUTS`; default the filter's white input)."""
+    ap.add_argument("--track-input", choices=TRACK_INPUTS, default="white",
+                    help="how the truth's track velocities enter: continuous white noise "
+                         "(the filter's model, default) or held over each sample (the "
+                         "paper's literal eqs. (6)-(7))")
 
 
 def add_filter_options(ap: argparse.ArgumentParser) -> None:

@@ -51,10 +51,10 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.arguments import kernel_delta_arg
+from firmware_sim.studies.arguments import add_track_input, kernel_delta_arg
 from firmware_sim.studies.filtering import FS_HZ, V_MPS, FilterOptions, run, service_filter
 from firmware_sim.studies.holds import holds
-from firmware_sim.truth import BURN_IN_S, TRACK_INPUTS, measured
+from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import PAPER_DELTA, RBPFConfig
 from gateway.identify.data import Dataset
 from gateway.identify.pipeline import PredictionErrorIdentifier
@@ -113,7 +113,8 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
     gate holds them in a curve; ``speed_mps``: the vehicle's constant speed;
     ``theta_name``: the paper study's vehicle, a key of :data:`PAPER_THETA`;
     ``kernel_delta``: the service's ``[estimator] kernel_delta`` (None: its default);
-    ``track_input``: how the truth's track velocities enter (:data:`TRACK_INPUTS`)."""
+    ``track_input``: how the truth's track velocities enter
+    (:data:`firmware_sim.truth.TRACK_INPUTS`)."""
     theta = PAPER_THETA[theta_name].as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps,
@@ -248,10 +249,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--hold", type=float, nargs=2, default=None, metavar=("AT_S", "FOR_S"),
                     help="no updates from AT_S for FOR_S seconds, as the gate holds them in "
                          "a curve (default: none)")
-    ap.add_argument("--track-input", choices=TRACK_INPUTS, default="white",
-                    help="how the truth's track velocities enter: continuous white noise "
-                         "(the filter's model, default) or held over each sample (the "
-                         "paper's literal eqs. (6)-(7))")
+    add_track_input(ap)
     args = ap.parse_args(argv)
     if not 0 < args.speed_mps <= 150:
         ap.error(f"expected 0 < --speed-mps <= 150 m/s, got {args.speed_mps}")

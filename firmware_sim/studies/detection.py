@@ -53,7 +53,12 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.studies.arguments import add_filter_options, fault_case, filter_options
+from firmware_sim.studies.arguments import (
+    add_filter_options,
+    add_track_input,
+    fault_case,
+    filter_options,
+)
 from firmware_sim.studies.detection_alerts import alert_columns, alerts
 from firmware_sim.studies.detection_report import plot, summary
 from firmware_sim.studies.filtering import (
@@ -66,7 +71,7 @@ from firmware_sim.studies.filtering import (
     service_filter,
 )
 from firmware_sim.studies.holds import holds, periodic_holds
-from firmware_sim.truth import SENSOR_NOISE_VAR, TRACK_INPUTS, NonlinearDampers, measured
+from firmware_sim.truth import SENSOR_NOISE_VAR, NonlinearDampers, measured
 from gateway.errors import InputError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
 from gateway.records import Estimate
@@ -238,10 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--nonlinear-dampers", action="store_true",
                     help="the truth's dampers saturate (the paper's Figs. 6-7 curves, scaled "
                          "with the parameter); the filter's model stays linear")
-    ap.add_argument("--track-input", choices=TRACK_INPUTS, default="white",
-                    help="how the truth's track velocities enter: continuous white noise "
-                         "(the filter's model, default) or held over each sample (the "
-                         "paper's literal eqs. (6)-(7))")
+    add_track_input(ap)
     ap.add_argument("--dead", nargs="+", default=[], metavar="SENSOR",
                     help="sensors with no value at all (a dead node), e.g. acc_w1 acc_w2")
     add_filter_options(ap)
