@@ -95,6 +95,12 @@ class EstimatorConfig:
     stated sigma at m = 1000; at 0.999 it is about half that. With few particles the
     kernel must re-draw more to keep the cloud diverse: at m = 64, 0.999 is far worse
     (docs/estimator.md "The kernel's discount and the Monte Carlo error").
+    ``queue_samples``: the grid samples the worker may be behind before samples are
+    dropped (then one contiguous run, and the filters restart after it). A filter start
+    runs fast mode's exact recursion over 2 s of data, which a slower gateway box works
+    off slower than real time; 20 s holds that start on a box where the exact recursion
+    keeps a tenth of real time (5 s held it only down to about 0.3: docs/reliability.md
+    "Worker behind").
     """
 
     particles: int = 1000
@@ -110,7 +116,7 @@ class EstimatorConfig:
     sensor_noise: str = "measured"
     output_rate_hz: float = 10.0
     checkpoint_interval_s: float = 5.0
-    queue_samples: int = 5000
+    queue_samples: int = 20_000
 
 
 @dataclass(frozen=True)

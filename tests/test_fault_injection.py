@@ -244,6 +244,8 @@ class Outcome:
     resumed: int = 0
     seqs: tuple[int, ...] = ()
     next_seqs: tuple[int, ...] = ()
+    dropped: int = 0
+    drop_runs: int = 0
 
 
 def _rej(reason: str) -> Callable[[FrontEndStats], int]:
@@ -447,6 +449,31 @@ def worker_killed_in_checkpoint(tmp_path: Path) -> Outcome:
     return Outcome(restarts=restarts, estimates_after=after, quarantined=quarantined)
 
 
+def worker_stopped(tmp_path: Path) -> Outcome:
+    """The worker stopped (SIGSTOP: what a slower box or a second load does to it, in
+    the extreme) until more than its queue is behind, then continued: the samples it
+    could not take are dropped as one run, it is not restarted (a stopped process is
+    alive), and its estimates resume."""
+    with Running(tmp_path, "stopped", particles=PARTICLES,
+                 overrides={"estimator.queue_samples": 2000}) as run:
+        sender = threading.Thread(target=_play, args=(run, traffic()), daemon=True)
+        sender.start()
+        worker = run.service.pipeline.worker if run.service.pipeline is not None else None
+        assert worker is not None and worker.pid is not None
+        assert _wait(lambda: worker.stats.estimates >= 2, 30)
+        pid = worker.pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            assert _wait(lambda: worker.stats.samples_dropped >= 1000, 30)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        n = worker.stats.estimates
+        assert _wait(lambda: worker.stats.estimates > n + 5, 15)
+        sender.join(30)
+        return Outcome(restarts=worker.stats.restarts, estimates_after=worker.stats.estimates - n,
+                       dropped=worker.stats.samples_dropped, drop_runs=worker.stats.drop_runs)
+
+
 # ------------------------------------------------------------------------- the rows
 _LIVE_ONLY = frozenset({"live"})
 _REPLAY_ONLY = frozenset({"replay"})
@@ -555,6 +582,16 @@ FAULTS += [
           "1 restart, estimates resume, nothing set aside", lambda o: o, runners=_STATE,
           state=worker_killed_in_checkpoint,
           see_also="tests/test_service.py::test_worker_sigkill_resumes_from_checkpoint_within_2_s"),
+    Fault("worker stopped", "process stall",
+          "the worker SIGSTOPped until 1 s of samples beyond its queue (2 s here) is "
+          "dropped, then SIGCONT",
+          "samples_dropped, drop_runs, worker restarts; estimates resume",
+          lambda o: o.dropped >= 1000 and o.drop_runs == 1 and o.restarts == 0
+          and o.estimates_after > 5,
+          ">= 1000 dropped in 1 run, no restart, > 5 estimates after", lambda o: o,
+          runners=_STATE, state=worker_stopped,
+          see_also="tests/test_worker_process.py::"
+                   "test_a_worker_behind_its_queue_loses_one_run_of_samples_not_a_block_between_gaps"),
 ]
 
 

@@ -1,4 +1,5 @@
-"""The estimator worker as a process: its priority, reported; Ctrl-C ignored; dies with its parent.
+"""The estimator worker as a process: its priority, reported; Ctrl-C ignored; dies with its parent;
+a worker behind its queue loses one run of samples.
 
 A tiny counting estimator stands in for the RBPF (module level: it is pickled to the
 spawned worker, which imports this module), so these tests take seconds, not minutes.
@@ -8,16 +9,19 @@ from __future__ import annotations
 
 import errno
 import logging
+import multiprocessing as mp
 import os
 import signal
 import time
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from fakes.stepping import SteppedRuns
 
 from gateway.records import Estimate, Sample
-from gateway.runtime.worker import WORKER_NICE, WorkerLink, WorkerSettings
+from gateway.runtime.worker import BLOCK_SAMPLES, WORKER_NICE, WorkerLink, WorkerSettings
 
 
 class CountingEstimator(SteppedRuns):
@@ -36,6 +40,37 @@ class CountingEstimator(SteppedRuns):
 
 def build() -> CountingEstimator:
     return CountingEstimator()
+
+
+class GatedEstimator(SteppedRuns):
+    """Takes one permit of ``gate`` per call of ``run`` (the test's hand on the worker's
+    speed); its estimate's mean is (samples with data stepped, samples bridged without
+    data, 0)."""
+
+    def __init__(self, gate: Any) -> None:
+        self.gate, self.stepped, self.bridged = gate, 0, 0
+
+    def step(self, sample: Sample) -> Estimate:
+        if np.isnan(sample.values).all():
+            self.bridged += 1
+        else:
+            self.stepped += 1
+        return Estimate(sample.t_s, (float(self.stepped), float(self.bridged), 0.0),
+                        (1.0,) * 3, 1.0)
+
+    def run(self, samples, output_every=None):
+        self.gate.acquire()
+        return super().run(samples, output_every)
+
+    def restart_filters(self) -> None:
+        raise AssertionError("a gap this short is bridged, not a restart")
+
+    def checkpoint(self) -> bytes:
+        return b""
+
+
+def build_gated(gate: Any) -> GatedEstimator:
+    return GatedEstimator(gate)
 
 
 def restore(blob: bytes) -> CountingEstimator:
@@ -106,3 +141,52 @@ def test_sigint_and_sigterm_leave_the_worker_to_its_parent_who_takes_the_final_c
     assert link.stats.last_seq_done == 24 and link.stats.restarts == 0
     link.close()
     assert got[-1] == b"25"           # the final checkpoint: every sample stepped
+
+
+def test_a_worker_behind_its_queue_loses_one_run_of_samples_not_a_block_between_gaps():
+    """Live, a worker a full queue behind (here held by the test; on a slow box, a filter
+    start at exact-mode speed) loses one contiguous run: blocks keep being dropped until
+    it has stepped everything it was given, not put on the queue as soon as there is room
+    between two gaps. The estimator then bridges that one gap."""
+    gate = mp.get_context("spawn").Semaphore(0)
+    settings = WorkerSettings(builder=partial(build_gated, gate), restorer=restore,
+                              output_interval_s=0.0, checkpoint_interval_s=1e9,
+                              grid_dt_s=1e-3)
+    link = WorkerLink(settings, queue_blocks=4, keep_spare=False)   # 80 samples
+    got: list[Estimate] = []
+
+    def block(k: int) -> list[Sample]:
+        return [Sample((k * BLOCK_SAMPLES + i) * 1e-3, np.zeros(3), 40.0, True)
+                for i in range(BLOCK_SAMPLES)]
+
+    def step(n: int, upto: int) -> None:
+        """Let the worker step ``n`` samples (one run each: output every sample) and wait
+        until the parent has heard that sample ``upto`` is done."""
+        for _ in range(n):
+            gate.release()
+        deadline = time.monotonic() + 30
+        while link.stats.last_seq_done < upto and time.monotonic() < deadline:
+            got.extend(link.poll(0.1))
+        assert link.stats.last_seq_done == upto
+
+    try:
+        assert link.wait_ready(60)
+        for k in range(6):                 # 4 blocks fit, the 5th starts a run of drops
+            link.send(block(k))
+        assert (link.stats.samples_dropped, link.stats.drop_runs) == (40, 1)
+        step(40, 39)
+        link.send(block(6))                # room on the queue, 40 samples still to step
+        assert (link.stats.samples_dropped, link.stats.drop_runs) == (60, 1)
+        step(40, 79)
+        link.send(block(7))                # caught up: taken, after one gap of 60
+        step(20, 159)
+        assert (link.stats.samples_dropped, link.stats.drop_runs) == (60, 1)
+        assert link.stats.samples_sent == 100
+        # one estimate per sample stepped with data; the 60 bridged before sample 140
+        assert [round(e.t_s * 1e3) for e in got] == list(range(80)) + list(range(140, 160))
+        assert [e.mean[1] for e in got] == [0.0] * 80 + [60.0] * 20
+        assert got[-1].mean[0] == 100.0
+    finally:
+        for _ in range(100):               # never leave the worker waiting on the gate
+            gate.release()
+        link.close()

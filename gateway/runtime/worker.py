@@ -8,8 +8,11 @@ The service sends blocks of grid samples; the worker steps the estimator, return
 estimates at the output rate (data time) and a checkpoint every
 ``checkpoint_interval_s`` of data time. The parent keeps every block sent since the
 last checkpoint, so when a worker dies a new one restores the checkpoint and is fed
-those blocks again: it resumes exactly where the dead one was. A full queue drops
-the block (counted) in live mode; replay blocks instead, so replay is deterministic.
+those blocks again: it resumes exactly where the dead one was. Live, a worker that
+falls a full queue behind loses one contiguous run of samples (counted): every block is
+dropped until it has stepped all it was given, so the estimator sees one gap, not a
+block between two gaps again and again (:meth:`WorkerLink.send`). Replay blocks
+instead, so replay is deterministic.
 Workers are spawned (a fresh interpreter): numba's OpenMP threading layer aborts in a
 process forked from one that has used it, so fork and a preloading fork server are
 both unsafe here. A spawned interpreter needs seconds to import and load the compiled
@@ -244,6 +247,8 @@ class WorkerStats:
 
     samples_sent: int = 0
     samples_dropped: int = 0
+    drop_runs: int = 0
+    """Contiguous runs of dropped samples: each one gap in the estimator's data."""
     ready: bool = False
     restarts: int = 0
     estimates: int = 0
@@ -279,6 +284,8 @@ class WorkerLink:
         self._out_q: Any = None
         self.stats = WorkerStats()
         self._seq = 0
+        self._shedding = False
+        """Live: dropping every block until the worker has stepped what it was given."""
         self._failures = 0
         self._done_at_start = -1
         self._spare: tuple[Any, Any, Any] | None = None
@@ -330,8 +337,22 @@ class WorkerLink:
     def pid(self) -> int | None:
         return self._proc.pid if self._proc is not None else None
 
+    @property
+    def backlog_samples(self) -> int:
+        """Samples on the queue that the worker has not stepped yet, as of the last poll
+        (the blocks kept for a restart since the last checkpoint hold them all)."""
+        n = 0
+        for item in reversed(self._pending):
+            if item.last_seq <= self.stats.last_seq_done:
+                break
+            if isinstance(item, SampleBlock):
+                n += len(item.t_s)
+        return n
+
     def send(self, samples: list[Sample]) -> None:
-        """Queue a block of consecutive samples; drops (and counts) when full in live mode."""
+        """Queue a block of consecutive samples. Replay waits for room; live, a block
+        that does not fit is dropped (counted), and so is every later one until the
+        worker has stepped all it was given (:meth:`_shed`)."""
         if not samples:
             return
         block = SampleBlock(self._seq, np.array([s.t_s for s in samples]),
@@ -346,14 +367,43 @@ class WorkerLink:
                     break
                 except queue.Full:
                     self.supervise()
-        else:
-            try:
-                self._in_q.put_nowait(block)
-            except queue.Full:
-                self.stats.samples_dropped += len(samples)
-                return
+        elif self._shed(block):
+            return
         self._pending.append(block)
         self.stats.samples_sent += len(samples)
+
+    def _shed(self, block: SampleBlock) -> bool:
+        """Live: put ``block`` on the queue, or drop it and say so (True).
+
+        A worker behind its queue loses one contiguous run of samples: once a block does
+        not fit (the backlog would pass the queue's ``queue_blocks * BLOCK_SAMPLES``, or
+        the queue is full), every block is dropped until the worker has stepped all it
+        was given. Dropping only while the queue is full would hand a worker slower than
+        the data one block between two gaps, again and again; each gap costs the
+        estimator a filter restart, and fast mode's restart runs the exact recursion,
+        slower still: measured, a worker that once fell behind never caught up
+        (docs/reliability.md "Worker behind")."""
+        n = len(block.t_s)
+        if self._shedding and self.backlog_samples > 0:
+            self.stats.samples_dropped += n
+            return True
+        if self._shedding:
+            self._shedding = False
+            log.warning("estimator worker caught up; %d samples dropped in %d run(s) so "
+                        "far", self.stats.samples_dropped, self.stats.drop_runs)
+        if self.backlog_samples + n <= self._queue_blocks * BLOCK_SAMPLES:
+            try:
+                self._in_q.put_nowait(block)
+                return False
+            except queue.Full:
+                pass
+        self._shedding = True
+        self.stats.drop_runs += 1
+        log.warning("estimator worker %d samples behind, its queue full: dropping samples "
+                    "until it has stepped them; its filters restart after the gap",
+                    self.backlog_samples)
+        self.stats.samples_dropped += n
+        return True
 
     def baseline_reset(self, index: int) -> None:
         """Parameter ``index`` re-learns from its prior, after every sample sent so far
