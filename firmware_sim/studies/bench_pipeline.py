@@ -5,7 +5,8 @@ timed in process CPU time, against the 8,000 frames/s of a full 1 Mbit/s bus.
 ``latency``: the live service on an in-process bus; for every estimate frame it sends,
 the time from the newest sensor frame it includes (its wire timestamp) to the moment
 the estimate frame goes out; and whether the worker kept up (samples dropped at the
-full queue, samples not yet stepped when the traffic ended, the worker's RTF). With
+full queue and in how many runs, samples not yet stepped when the traffic ended, the
+worker's RTF). With
 ``--bus-loss P`` the sender drops each frame with probability P (a lossy bus: every
 lost sensor frame is a grid sample with that sensor missing); with ``--silent-node M``
 node M sends nothing at all (a dead node, or one the vehicle is not fitted with).
@@ -91,6 +92,7 @@ def bench_latency(args: argparse.Namespace) -> dict[str, Any]:
     steady = np.array(lags[len(lags) // 4:]) * 1e3 if lags else np.array([np.nan])
     behind = {} if stats is None else {
         "samples_out": stats.samples_out, "samples_dropped": stats.samples_dropped,
+        "drop_runs": stats.drop_runs,
         "samples_not_stepped_at_end": stats.samples_out - 1 - stats.last_seq_done,
         "worker_rtf": stats.rtf, "worker_restarts": stats.worker_restarts}
     return {"particles": args.particles, "mode": cfg.estimator.mode,

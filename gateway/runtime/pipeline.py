@@ -175,6 +175,8 @@ class PipelineStats:
     """Grid samples the front end has released so far."""
     samples_dropped: int
     """Grid samples dropped at the full worker queue (live)."""
+    drop_runs: int
+    """Contiguous runs of dropped samples: each one gap, one filter restart."""
     priority_error: str | None
     """None until a worker reported; "" when its priority was lowered; else why not."""
     frames_rejected: int
@@ -272,6 +274,7 @@ class Pipeline:
             worker_alive=w.alive, worker_ready=w.ready, worker_restarts=w.restarts,
             worker_pid=self.worker.pid, last_seq_done=w.last_seq_done,
             samples_out=self.samples_out, samples_dropped=w.samples_dropped,
+            drop_runs=w.drop_runs,
             priority_error=w.priority_error,
             frames_rejected=self.validator.stats.rejected_total, rtf=self.rtf,
             sensors=tuple(SensorStatus(name, m.rate_hz(), 1.0 / m.cycle_time_s, m.accepted,
