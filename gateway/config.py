@@ -98,9 +98,9 @@ class EstimatorConfig:
     ``queue_samples``: the grid samples the worker may be behind before samples are
     dropped (then one contiguous run, and the filters restart after it). A filter start
     runs fast mode's exact recursion over 2 s of data, which a slower gateway box works
-    off slower than real time; 20 s holds that start on a box where the exact recursion
-    keeps a tenth of real time (5 s held it only down to about 0.3: docs/reliability.md
-    "Worker behind").
+    off slower than real time; by arithmetic, 20 s holds that start on a box where the
+    exact recursion keeps a tenth of real time, 5 s only down to about 0.3 (computed,
+    not measured on such a box: docs/reliability.md "Worker behind").
     """
 
     particles: int = 1000
