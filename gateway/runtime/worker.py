@@ -383,15 +383,15 @@ class WorkerLink:
         estimator a filter restart, and fast mode's restart runs the exact recursion,
         slower still: measured, a worker that once fell behind never caught up
         (docs/reliability.md "Worker behind")."""
-        n = len(block.t_s)
-        if self._shedding and self.backlog_samples > 0:
+        n, backlog = len(block.t_s), self.backlog_samples
+        if self._shedding and backlog > 0:
             self.stats.samples_dropped += n
             return True
         if self._shedding:
             self._shedding = False
             log.warning("estimator worker caught up; %d samples dropped in %d run(s) so "
                         "far", self.stats.samples_dropped, self.stats.drop_runs)
-        if self.backlog_samples + n <= self._queue_blocks * BLOCK_SAMPLES:
+        if backlog + n <= self._queue_blocks * BLOCK_SAMPLES:
             try:
                 self._in_q.put_nowait(block)
                 return False
@@ -400,8 +400,7 @@ class WorkerLink:
         self._shedding = True
         self.stats.drop_runs += 1
         log.warning("estimator worker %d samples behind, its queue full: dropping samples "
-                    "until it has stepped them; its filters restart after the gap",
-                    self.backlog_samples)
+                    "until it has stepped them; its filters restart after the gap", backlog)
         self.stats.samples_dropped += n
         return True
 
