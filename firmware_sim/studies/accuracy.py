@@ -29,7 +29,6 @@ the service; a measuring tool.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Iterator, Sequence
@@ -37,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from firmware_sim.studies.rows import emit
 from firmware_sim.truth import lose_values, measured
 from gateway.estimator.monitor import MonitorConfig, cusum
 from gateway.estimator.rbpf import RBPF, RBPFConfig
@@ -277,7 +277,7 @@ def _modes(arg: str | None, what: str) -> tuple[str, ...]:
 
 
 def _print(row: dict[str, Any]) -> None:
-    print(json.dumps(row), flush=True)
+    emit(row)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -54,6 +54,7 @@ import numpy as np
 from firmware_sim.studies.arguments import add_track_input, kernel_delta_arg
 from firmware_sim.studies.filtering import FS_HZ, V_MPS, FilterOptions, run, service_filter
 from firmware_sim.studies.holds import holds
+from firmware_sim.studies.rows import emit
 from firmware_sim.truth import BURN_IN_S, measured
 from gateway.estimator.rbpf_config import PAPER_DELTA, RBPFConfig
 from gateway.identify.data import Dataset
@@ -277,7 +278,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 start_ramp_m=args.start_ramp_m, theta_name=args.theta,
                                 kernel_delta=args.kernel_delta,
                                 track_input=args.track_input):
-                print(json.dumps(row), flush=True)
+                emit(row)
     return 0
 
 

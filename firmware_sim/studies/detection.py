@@ -71,6 +71,7 @@ from firmware_sim.studies.filtering import (
     service_filter,
 )
 from firmware_sim.studies.holds import holds, periodic_holds
+from firmware_sim.studies.rows import emit
 from firmware_sim.truth import SENSOR_NOISE_VAR, NonlinearDampers, measured
 from gateway.errors import InputError
 from gateway.model.vehicle import PARAM_NAMES, THETA_NOMINAL, sensor_set
@@ -276,7 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   hold_at_s=args.hold_at_s, **record)
                         for p, f in args.cases]
             for row in rows:
-                print(json.dumps(row), flush=True)
+                emit(row)
     return 0
 
 

@@ -38,6 +38,7 @@ import numpy as np
 
 from firmware_sim.studies.calibration import SEED_OFFSET, record
 from firmware_sim.studies.filtering import FS_HZ, V_MPS, run
+from firmware_sim.studies.rows import emit
 from gateway.estimator.rbpf import RBPF
 from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42
@@ -168,8 +169,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     half = args.half_log or half_log_for(args.sensors, args.at_s)
     for seed in args.seeds:
-        print(json.dumps(row_for(seed, args.sensors, args.at_s, args.from_rest, half,
-                                 args.points)), flush=True)
+        emit(row_for(seed, args.sensors, args.at_s, args.from_rest, half,
+                     args.points))
     return 0
 
 

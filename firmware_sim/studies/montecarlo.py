@@ -37,6 +37,7 @@ from firmware_sim.studies.arguments import kernel_delta_arg
 from firmware_sim.studies.calibration import SEED_OFFSET, record
 from firmware_sim.studies.filtering import V_MPS, FilterOptions, run, service_filter
 from firmware_sim.studies.grid_posterior import grid_posterior, half_log_for
+from firmware_sim.studies.rows import emit
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42
 
 GRID_POINTS = 16
@@ -143,8 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for seed in args.seeds:
         for ns in args.sensors:
             for delta in args.kernel_delta:
-                print(json.dumps(row_for(seed, ns, args.at_s, args.speed_mps, delta,
-                                         args.filter_seeds, args.particles)), flush=True)
+                emit(row_for(seed, ns, args.at_s, args.speed_mps, delta,
+                             args.filter_seeds, args.particles))
     return 0
 
 

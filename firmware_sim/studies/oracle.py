@@ -26,7 +26,6 @@ A measuring tool, not used by the service.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -36,6 +35,7 @@ import numpy as np
 from firmware_sim.studies.arguments import fault_case
 from firmware_sim.studies.detection import fault_data
 from firmware_sim.studies.filtering import FS_HZ, V_MPS
+from firmware_sim.studies.rows import emit
 from firmware_sim.truth import SENSOR_NOISE_VAR
 from gateway.estimator.faultbank import FaultBankConfig
 from gateway.model.vehicle import (
@@ -162,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                        fault_at_s=args.fault_at, after_s=args.after,
                                        noise_scale=args.noise_scale, h_nats=args.h_nats,
                                        speed_mps=args.speed_mps, against=args.against):
-                    print(json.dumps(row), flush=True)
+                    emit(row)
     return 0
 
 

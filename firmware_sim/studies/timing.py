@@ -49,6 +49,7 @@ from firmware_sim.nodes import MIN_LATENCY_S, NodeClock
 from firmware_sim.output import drop_frames, write_log
 from firmware_sim.scenarios import get_scenario
 from firmware_sim.simulation import SimConfig, Simulation
+from firmware_sim.studies.rows import emit
 from gateway.config import INTERPOLATIONS, Config
 from gateway.model.vehicle import PARAM_NAMES
 from gateway.offline.replay import replay
@@ -215,7 +216,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         row = run_case(seed, case, interpolation, args.sensors, args.seconds,
                                        args.particles, args.scenario, Path(tmp),
                                        args.bus_loss, args.mode, filter_seed)
-                        print(json.dumps(row), flush=True)
+                        emit(row)
     return 0
 
 
