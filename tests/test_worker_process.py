@@ -12,6 +12,7 @@ import logging
 import multiprocessing as mp
 import os
 import signal
+import threading
 import time
 from functools import partial
 from pathlib import Path
@@ -45,18 +46,21 @@ def build() -> CountingEstimator:
 class GatedEstimator(SteppedRuns):
     """Takes one permit of ``gate`` per call of ``run`` (the test's hand on the worker's
     speed); its estimate's mean is (samples with data stepped, samples bridged without
-    data, 0)."""
+    data, baseline resets applied)."""
 
     def __init__(self, gate: Any) -> None:
-        self.gate, self.stepped, self.bridged = gate, 0, 0
+        self.gate, self.stepped, self.bridged, self.resets = gate, 0, 0, 0
 
     def step(self, sample: Sample) -> Estimate:
         if np.isnan(sample.values).all():
             self.bridged += 1
         else:
             self.stepped += 1
-        return Estimate(sample.t_s, (float(self.stepped), float(self.bridged), 0.0),
-                        (1.0,) * 3, 1.0)
+        return Estimate(sample.t_s, (float(self.stepped), float(self.bridged),
+                                     float(self.resets)), (1.0,) * 3, 1.0)
+
+    def reset_parameter(self, index: int) -> None:
+        self.resets += 1
 
     def run(self, samples, output_every=None):
         self.gate.acquire()
@@ -188,5 +192,65 @@ def test_a_worker_behind_its_queue_loses_one_run_of_samples_not_a_block_between_
         assert got[-1].mean[0] == 100.0
     finally:
         for _ in range(100):               # never leave the worker waiting on the gate
+            gate.release()
+        link.close()
+
+
+def test_a_restarted_worker_gets_its_replay_and_instructions_without_holding_the_caller():
+    """A worker killed with more blocks since its last checkpoint than its queue holds:
+    the restart replays them all, in order, but from an outbox the caller tops up, so
+    neither the restart nor a baseline reset sent meanwhile waits for the new worker
+    (here held by the test; on a vehicle, a slow start or a worker that died again).
+    Before, the restart put the replay on the queue with a blocking put and held the
+    service's main loop until the worker made room, for ever if it never did."""
+    gate = mp.get_context("spawn").Semaphore(0)
+    settings = WorkerSettings(builder=partial(build_gated, gate), restorer=restore,
+                              output_interval_s=0.0, checkpoint_interval_s=1e9,
+                              grid_dt_s=1e-3)
+    link = WorkerLink(settings, queue_blocks=3, keep_spare=False)   # 60 samples
+    got: list[Estimate] = []
+
+    def block(k: int) -> list[Sample]:
+        return [Sample((k * BLOCK_SAMPLES + i) * 1e-3, np.ones(3), 40.0, True)
+                for i in range(BLOCK_SAMPLES)]
+
+    def step(n: int, upto: int) -> None:
+        for _ in range(n):
+            gate.release()
+        deadline = time.monotonic() + 30
+        while link.stats.last_seq_done < upto and time.monotonic() < deadline:
+            got.extend(link.poll(0.1))
+        assert link.stats.last_seq_done == upto
+
+    def restart_and_reset() -> None:
+        deadline = time.monotonic() + 30
+        while link.stats.restarts == 0 and time.monotonic() < deadline:
+            got.extend(link.poll(0.1))
+        link.baseline_reset(0)
+
+    try:
+        assert link.wait_ready(60)
+        for k in range(3):
+            link.send(block(k))
+        step(60, 59)
+        for k in range(3, 6):              # 60 more on the queue: 120 since the start
+            link.send(block(k))
+        assert link.pid is not None
+        os.kill(link.pid, signal.SIGKILL)   # no checkpoint yet: all 120 are replayed
+        caller = threading.Thread(target=restart_and_reset, daemon=True)
+        caller.start()
+        caller.join(60)
+        assert not caller.is_alive(), "the restart waited for the new worker's queue"
+        assert link.stats.restarts == 1 and link.stats.replay_backlog == 6
+        step(120, 119)                     # the replay, in order, then the reset
+        link.send(block(6))
+        step(20, 139)
+        assert link.stats.samples_dropped == 0 and link.stats.restarts == 1
+        # the old worker's 60, the new worker's 120 (all replayed) and 20 more
+        assert [round(e.t_s * 1e3) for e in got] == (list(range(60)) + list(range(140)))
+        assert got[-1].mean == (140.0, 0.0, 1.0)     # none bridged, the reset applied once
+        assert got[-21].mean == (120.0, 0.0, 0.0)    # ... after the replay, not in it
+    finally:
+        for _ in range(300):               # never leave the worker waiting on the gate
             gate.release()
         link.close()

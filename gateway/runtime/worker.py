@@ -279,6 +279,8 @@ class WorkerLink:
         self._on_checkpoint = on_checkpoint
         self._checkpoint = checkpoint
         self._pending: deque[SampleBlock | Control] = deque()
+        self._outbox: deque[SampleBlock | Control] = deque()
+        """Items for the worker, in order, not yet on its queue (:meth:`_feed`)."""
         self._proc: Any = None
         self._in_q: Any = None
         self._out_q: Any = None
@@ -329,9 +331,24 @@ class WorkerLink:
         self.stats.ready = False
         if self._keep_spare:
             self._spare = self._spawn()
-        for block in list(self._pending):        # replay what the checkpoint has not seen
-            self._in_q.put(block)
+        # replay what the checkpoint has not seen: it can be more than the queue holds,
+        # so it goes through the outbox, which the main loop tops up and never waits on
+        self._outbox = deque(self._pending)
         self.stats.replay_backlog = len(self._pending)
+        self._feed()
+
+    def _feed(self) -> None:
+        """Move items from the outbox onto the worker's queue while it has room; never
+        waits. A restarted worker's replay (up to a checkpoint interval plus a queue) and
+        an instruction sent while the queue is full wait here, in order, so that neither
+        holds the service's main loop: a blocking put there held it for as long as the
+        worker took to make room, and for ever if the new worker died or stopped."""
+        while self._outbox:
+            try:
+                self._in_q.put_nowait(self._outbox[0])
+            except queue.Full:
+                return
+            self._outbox.popleft()
 
     @property
     def pid(self) -> int | None:
@@ -360,29 +377,30 @@ class WorkerLink:
                             np.array([s.speed_mps for s in samples]),
                             np.array([s.update for s in samples]))
         self._seq += len(samples)
-        if self._blocking:
-            while True:        # replay: wait for room, but keep the worker supervised
-                try:
-                    self._in_q.put(block, timeout=0.5)
-                    break
-                except queue.Full:
-                    self.supervise()
-        elif self._shed(block):
+        if not self._blocking and self._shed(block):
             return
         self._pending.append(block)
+        self._outbox.append(block)
         self.stats.samples_sent += len(samples)
+        self._feed()
+        while self._blocking and self._outbox:   # replay: wait for room, supervised
+            try:
+                self._in_q.put(self._outbox[0], timeout=0.5)
+                self._outbox.popleft()
+            except queue.Full:
+                self.supervise()
 
     def _shed(self, block: SampleBlock) -> bool:
-        """Live: put ``block`` on the queue, or drop it and say so (True).
+        """Live: whether to drop ``block`` (True: counted and logged) rather than send it.
 
         A worker behind its queue loses one contiguous run of samples: once a block does
-        not fit (the backlog would pass the queue's ``queue_blocks * BLOCK_SAMPLES``, or
-        the queue is full), every block is dropped until the worker has stepped all it
-        was given. Dropping only while the queue is full would hand a worker slower than
-        the data one block between two gaps, again and again; each gap costs the
-        estimator a filter restart, and fast mode's restart runs the exact recursion,
-        slower still: measured, a worker that once fell behind never caught up
-        (docs/reliability.md "Worker behind")."""
+        not fit (the backlog would pass the queue's ``queue_blocks * BLOCK_SAMPLES``),
+        every block is dropped until the worker has stepped all it was given. Dropping
+        only while there is no room would hand a worker slower than the data one block
+        between two gaps, again and again; each gap costs the estimator a filter
+        restart, and fast mode's restart runs the exact recursion, slower still:
+        measured, a worker that once fell behind never caught up (docs/reliability.md
+        "Worker behind")."""
         n, backlog = len(block.t_s), self.backlog_samples
         if self._shedding and backlog > 0:
             self.stats.samples_dropped += n
@@ -392,11 +410,7 @@ class WorkerLink:
             log.warning("estimator worker caught up; %d samples dropped in %d run(s) so "
                         "far", self.stats.samples_dropped, self.stats.drop_runs)
         if backlog + n <= self._queue_blocks * BLOCK_SAMPLES:
-            try:
-                self._in_q.put_nowait(block)
-                return False
-            except queue.Full:
-                pass
+            return False
         self._shedding = True
         self.stats.drop_runs += 1
         log.warning("estimator worker %d samples behind, its queue full: dropping samples "
@@ -410,14 +424,18 @@ class WorkerLink:
         self._control(BaselineReset(self._seq - 1, index))
 
     def _control(self, item: BaselineReset) -> None:
-        """Queue an instruction; kept for replay into a restarted worker until a
+        """Queue an instruction after every block sent before it (never waits: the
+        outbox, :meth:`_feed`); kept for replay into a restarted worker until a
         checkpoint covers it."""
-        self._in_q.put(item)
         self._pending.append(item)
+        self._outbox.append(item)
+        self._feed()
 
     def poll(self, timeout_s: float = 0.0) -> list[Estimate]:
-        """Estimates received since the last poll; restarts a dead worker first."""
+        """Estimates received since the last poll; restarts a dead worker first and
+        tops up its queue from the outbox."""
         self.supervise()
+        self._feed()
         out: list[Estimate] = self._early
         self._early = []
         wait = timeout_s
