@@ -147,43 +147,58 @@ def test_sigint_and_sigterm_leave_the_worker_to_its_parent_who_takes_the_final_c
     assert got[-1] == b"25"           # the final checkpoint: every sample stepped
 
 
+class GatedLink:
+    """A live link whose worker (a :class:`GatedEstimator`, built afresh by every worker,
+    a restarted one too) steps one sample per permit the test gives."""
+
+    def __init__(self, queue_blocks: int) -> None:
+        self.gate = mp.get_context("spawn").Semaphore(0)
+        settings = WorkerSettings(builder=partial(build_gated, self.gate), restorer=restore,
+                                  output_interval_s=0.0, checkpoint_interval_s=1e9,
+                                  grid_dt_s=1e-3)
+        self.link = WorkerLink(settings, queue_blocks=queue_blocks, keep_spare=False)
+        self.got: list[Estimate] = []
+
+    @staticmethod
+    def block(k: int) -> list[Sample]:
+        """Block ``k`` of the grid: samples k * BLOCK_SAMPLES ... , 1 ms apart."""
+        return [Sample((k * BLOCK_SAMPLES + i) * 1e-3, np.zeros(3), 40.0, True)
+                for i in range(BLOCK_SAMPLES)]
+
+    def step(self, n: int, upto: int) -> None:
+        """Let the worker step ``n`` samples (one run each: output every sample) and wait
+        until the parent has heard that sample ``upto`` is done."""
+        for _ in range(n):
+            self.gate.release()
+        deadline = time.monotonic() + 30
+        while self.link.stats.last_seq_done < upto and time.monotonic() < deadline:
+            self.got.extend(self.link.poll(0.1))
+        assert self.link.stats.last_seq_done == upto
+
+    def close(self, permits: int) -> None:
+        for _ in range(permits):           # never leave a worker waiting on the gate
+            self.gate.release()
+        self.link.close()
+
+
 def test_a_worker_behind_its_queue_loses_one_run_of_samples_not_a_block_between_gaps():
     """Live, a worker a full queue behind (here held by the test; on a slow box, a filter
     start at exact-mode speed) loses one contiguous run: blocks keep being dropped until
     it has stepped everything it was given, not put on the queue as soon as there is room
     between two gaps. The estimator then bridges that one gap."""
-    gate = mp.get_context("spawn").Semaphore(0)
-    settings = WorkerSettings(builder=partial(build_gated, gate), restorer=restore,
-                              output_interval_s=0.0, checkpoint_interval_s=1e9,
-                              grid_dt_s=1e-3)
-    link = WorkerLink(settings, queue_blocks=4, keep_spare=False)   # 80 samples
-    got: list[Estimate] = []
-
-    def block(k: int) -> list[Sample]:
-        return [Sample((k * BLOCK_SAMPLES + i) * 1e-3, np.zeros(3), 40.0, True)
-                for i in range(BLOCK_SAMPLES)]
-
-    def step(n: int, upto: int) -> None:
-        """Let the worker step ``n`` samples (one run each: output every sample) and wait
-        until the parent has heard that sample ``upto`` is done."""
-        for _ in range(n):
-            gate.release()
-        deadline = time.monotonic() + 30
-        while link.stats.last_seq_done < upto and time.monotonic() < deadline:
-            got.extend(link.poll(0.1))
-        assert link.stats.last_seq_done == upto
-
+    g = GatedLink(queue_blocks=4)          # 80 samples
+    link, got = g.link, g.got
     try:
         assert link.wait_ready(60)
         for k in range(6):                 # 4 blocks fit, the 5th starts a run of drops
-            link.send(block(k))
+            link.send(g.block(k))
         assert (link.stats.samples_dropped, link.stats.drop_runs) == (40, 1)
-        step(40, 39)
-        link.send(block(6))                # room on the queue, 40 samples still to step
+        g.step(40, 39)
+        link.send(g.block(6))              # room on the queue, 40 samples still to step
         assert (link.stats.samples_dropped, link.stats.drop_runs) == (60, 1)
-        step(40, 79)
-        link.send(block(7))                # caught up: taken, after one gap of 60
-        step(20, 159)
+        g.step(40, 79)
+        link.send(g.block(7))              # caught up: taken, after one gap of 60
+        g.step(20, 159)
         assert (link.stats.samples_dropped, link.stats.drop_runs) == (60, 1)
         assert link.stats.samples_sent == 100
         # one estimate per sample stepped with data; the 60 bridged before sample 140
@@ -191,9 +206,7 @@ def test_a_worker_behind_its_queue_loses_one_run_of_samples_not_a_block_between_
         assert [e.mean[1] for e in got] == [0.0] * 80 + [60.0] * 20
         assert got[-1].mean[0] == 100.0
     finally:
-        for _ in range(100):               # never leave the worker waiting on the gate
-            gate.release()
-        link.close()
+        g.close(100)
 
 
 def test_a_restarted_worker_gets_its_replay_and_instructions_without_holding_the_caller():
@@ -203,24 +216,8 @@ def test_a_restarted_worker_gets_its_replay_and_instructions_without_holding_the
     (here held by the test; on a vehicle, a slow start or a worker that died again).
     Before, the restart put the replay on the queue with a blocking put and held the
     service's main loop until the worker made room, for ever if it never did."""
-    gate = mp.get_context("spawn").Semaphore(0)
-    settings = WorkerSettings(builder=partial(build_gated, gate), restorer=restore,
-                              output_interval_s=0.0, checkpoint_interval_s=1e9,
-                              grid_dt_s=1e-3)
-    link = WorkerLink(settings, queue_blocks=3, keep_spare=False)   # 60 samples
-    got: list[Estimate] = []
-
-    def block(k: int) -> list[Sample]:
-        return [Sample((k * BLOCK_SAMPLES + i) * 1e-3, np.ones(3), 40.0, True)
-                for i in range(BLOCK_SAMPLES)]
-
-    def step(n: int, upto: int) -> None:
-        for _ in range(n):
-            gate.release()
-        deadline = time.monotonic() + 30
-        while link.stats.last_seq_done < upto and time.monotonic() < deadline:
-            got.extend(link.poll(0.1))
-        assert link.stats.last_seq_done == upto
+    g = GatedLink(queue_blocks=3)          # 60 samples
+    link, got = g.link, g.got
 
     def restart_and_reset() -> None:
         deadline = time.monotonic() + 30
@@ -231,10 +228,10 @@ def test_a_restarted_worker_gets_its_replay_and_instructions_without_holding_the
     try:
         assert link.wait_ready(60)
         for k in range(3):
-            link.send(block(k))
-        step(60, 59)
+            link.send(g.block(k))
+        g.step(60, 59)
         for k in range(3, 6):              # 60 more on the queue: 120 since the start
-            link.send(block(k))
+            link.send(g.block(k))
         assert link.pid is not None
         os.kill(link.pid, signal.SIGKILL)   # no checkpoint yet: all 120 are replayed
         caller = threading.Thread(target=restart_and_reset, daemon=True)
@@ -242,15 +239,13 @@ def test_a_restarted_worker_gets_its_replay_and_instructions_without_holding_the
         caller.join(60)
         assert not caller.is_alive(), "the restart waited for the new worker's queue"
         assert link.stats.restarts == 1 and link.stats.replay_backlog == 6
-        step(120, 119)                     # the replay, in order, then the reset
-        link.send(block(6))
-        step(20, 139)
+        g.step(120, 119)                   # the replay, in order, then the reset
+        link.send(g.block(6))
+        g.step(20, 139)
         assert link.stats.samples_dropped == 0 and link.stats.restarts == 1
         # the old worker's 60, the new worker's 120 (all replayed) and 20 more
         assert [round(e.t_s * 1e3) for e in got] == (list(range(60)) + list(range(140)))
         assert got[-1].mean == (140.0, 0.0, 1.0)     # none bridged, the reset applied once
         assert got[-21].mean == (120.0, 0.0, 0.0)    # ... after the replay, not in it
     finally:
-        for _ in range(300):               # never leave the worker waiting on the gate
-            gate.release()
-        link.close()
+        g.close(300)
