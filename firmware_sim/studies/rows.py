@@ -22,13 +22,14 @@ from threadpoolctl import threadpool_info
 
 @functools.cache
 def blas_kernels() -> str:
-    """The BLAS library numpy loaded and the CPU kernels it chose, e.g. "openblas
-    0.3.31.188.0 Haswell"; "unknown" where threadpoolctl cannot tell."""
-    for lib in threadpool_info():
-        if lib.get("user_api") == "blas":
-            return " ".join(str(lib.get(k) or "?")
-                            for k in ("internal_api", "version", "architecture"))
-    return "unknown"
+    """Each BLAS library loaded (numpy's, and scipy's once a study has imported it) and
+    the CPU kernels it chose, e.g. "openblas 0.3.31.188.0 Haswell; openblas 0.3.30
+    Haswell"; "unknown" where threadpoolctl finds none. Cached at the first row: a
+    study imports what it needs before it computes one."""
+    libs = [" ".join(str(lib.get(k) or "?") for k in ("internal_api", "version",
+                                                       "architecture"))
+            for lib in threadpool_info() if lib.get("user_api") == "blas"]
+    return "; ".join(libs) or "unknown"
 
 
 def emit(row: dict[str, Any]) -> None:
