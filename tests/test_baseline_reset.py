@@ -55,7 +55,7 @@ def test_reset_parameter_redraws_only_that_parameter():
     np.testing.assert_array_equal(after[:, 0], before[:, 0])
     np.testing.assert_array_equal(after[:, 2], before[:, 2])
     assert not np.array_equal(after[:, 1], before[:, 1])
-    lo, hi = 0.3 * THETA_NOMINAL.csay_ns_per_m, 2.5 * THETA_NOMINAL.csay_ns_per_m
+    lo, hi = (edge[1] for edge in f.config.box(f.config.prior_lo, f.config.prior_hi))
     assert np.all((after[:, 1] >= lo * 0.999) & (after[:, 1] <= hi * 1.001))
     with pytest.raises(Exception, match="expected a parameter index"):
         f.reset_parameter(7)

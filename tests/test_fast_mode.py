@@ -10,11 +10,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import scipy.linalg
 
 from firmware_sim.truth import add_sensor_noise, select, simulate
+from gateway.config import EstimatorConfig
 from gateway.errors import EstimatorError
 from gateway.estimator import steady as st
 from gateway.estimator.batch_expm import DiscreteBatch
@@ -30,6 +33,7 @@ from gateway.model.vehicle import (
     track_intensity,
 )
 from gateway.records import Sample
+from gateway.runtime.pipeline import estimator_config
 
 V_MPS, FS_HZ = 42.5, 1000.0
 NOMINAL = THETA_SEC42.as_array()
@@ -297,7 +301,8 @@ def test_a_lost_frame_rejoins_the_steady_gains_once_p_is_back(n_sensors: int) ->
 
 def test_moves_on_the_way_back_solve_the_gains_of_the_moved_particles() -> None:
     """Resample-moves while the exact recursion is on its way back from a lost frame
-    (forced here for 5 samples: a resampling threshold of 0.999) solve the moved
+    (forced here for 5 samples: a resampling threshold above 1, so that the effective
+    sample size, at most m, is always below it; others may come on their own) solve the moved
     particles' gains from their ancestors', as in the steady phase, and each moved
     particle keeps its ancestor's deviation from the steady P+ under its own: the
     recursion rejoins the steady gains as soon as without the moves (measured: 83
@@ -312,16 +317,16 @@ def test_moves_on_the_way_back_solve_the_gains_of_the_moved_particles() -> None:
     filt.run(S[:1000])
     assert filt._steady
     usual = filt.config
-    often = RBPFConfig(**{**usual.__dict__, "ess_threshold": 0.999})
-    moves, back = 0, None
+    often = RBPFConfig(**{**usual.__dict__, "ess_threshold": 1.001})
+    forced, back = 0, None
     for k in range(1000, len(S)):
         n = filt.n_resamples
         filt.config = often if 1040 <= k < 1045 else usual
         filt.step(S[k])
-        moves += int(filt._rejoin and filt.n_resamples > n)
+        forced += int(1040 <= k < 1045 and filt._rejoin and filt.n_resamples > n)
         if back is None and k >= 1040 and filt._steady:
             back = k
-    assert moves == 5 and back is not None and back - 1040 < 200, (moves, back)
+    assert forced == 5 and back is not None and back - 1040 < 200, (forced, back)
     bank = Bank(filt.theta, 3)
     m = bank.m
     for a, b in ((filt._gains.g, bank.gains.g), (filt._gains.p_pred, bank.gains.p_pred)):
@@ -435,14 +440,24 @@ def test_fast_mode_recovers_the_truth_like_the_exact_mode() -> None:
     approximations, and one pair's gap is Monte Carlo noise of that size (two exact runs
     that differ only in the filter seed are 0.2-1.2 sigma apart in median, up to 9 sigma at
     worst); a bound of 0.5 sigma on each pair failed about one seed in five, with the
-    moves' static-yaw step on or off (docs/estimator.md "Fast mode against exact mode")."""
+    moves' static-yaw step on or off (docs/estimator.md "Fast mode against exact mode").
+
+    Both modes run the service's filter settings at m = 500 (``estimator_config``: the
+    start's likelihood ramp, the kernel discount 0.999). Until 2026-11-29 (twelfth
+    session) the test ran the RBPF's bare defaults, without the ramp, the start-up
+    lock-in's fix: at m = 500 that filter lay beyond 4 sigma at 5 s on 10 of 60 fresh
+    records (seeds 6350-6409) with either prior box, so its truth check held on these
+    four seeds by chance, and failed on seed 24 (Csay at 0.82, 12 sigma, in both modes)
+    when the prior's damper edge moved to 0.1 (docs/estimator.md "The twelfth
+    session")."""
     gaps, seen = [], []
     for seed in PAIRED_SEEDS:
         S = _samples(_outputs(5000, 3, seed=seed))
         out = {}
         for mode in ("fast", "exact"):
-            filt = RBPF(RBPFConfig(fs_hz=FS_HZ, n_particles=500, sensors=3, seed=seed,
-                                   mode=mode))
+            settings = replace(EstimatorConfig(), sensors=3, seed=seed, particles=500,
+                               mode=mode)
+            filt = RBPF(estimator_config(settings, FS_HZ))
             out[mode] = filt.run(S, output_every=500)[-1]
         for mode, est in out.items():
             mean, std = np.array(est.mean), np.array(est.std)

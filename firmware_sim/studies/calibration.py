@@ -13,6 +13,8 @@ filter's z-score ``(mean - truth) / sigma`` and ``sigma / sigma_ML``.
 ``box --seeds 1 ... 50`` draws theta uniformly over the filter's prior box
 (:class:`gateway.estimator.rbpf_config.RBPFConfig` ``prior_lo``/``prior_hi`` times
 nominal) and runs 10 s (start-up: is the lock-in gone everywhere in the box?); no ML fit.
+The dampers' edge of that box is 0.1 since 2026-11-29 (twelfth session); rows made before
+drew them from 0.3, and the same seed now draws another theta.
 
 ``--moves-drop-null`` / ``--no-moves-drop-null`` runs the filter with that option of
 :class:`gateway.estimator.rbpf_config.RBPFConfig` on or off (default: the filter's own),
@@ -105,7 +107,8 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
              start_ramp_s: float | None = None, hold: tuple[float, float] | None = None,
              speed_mps: float = V_MPS, start_ramp_m: float | None = None,
              theta_name: str = "paper", kernel_delta: float | None = None,
-             track_input: str = "white") -> list[dict[str, Any]]:
+             track_input: str = "white",
+             prior_lo: tuple[float, float, float] | None = None) -> list[dict[str, Any]]:
     """One row per check time (default :data:`PAPER_AT_S` or :data:`BOX_AT_S`) for one
     record, which lasts until the last of them; ``moves_drop_null`` overrides that
     option of the service's filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`;
@@ -115,14 +118,16 @@ def rows_for(what: str, seed: int, sensors: int, particles: int, mode: str,
     ``theta_name``: the paper study's vehicle, a key of :data:`PAPER_THETA`;
     ``kernel_delta``: the service's ``[estimator] kernel_delta`` (None: its default);
     ``track_input``: how the truth's track velocities enter
-    (:data:`firmware_sim.truth.TRACK_INPUTS`)."""
+    (:data:`firmware_sim.truth.TRACK_INPUTS`); ``prior_lo``: the filter's prior box's
+    lower edges (None: the service's)."""
     theta = PAPER_THETA[theta_name].as_array() if what == "paper" else box_theta(seed)
     at_s = at_s or (PAPER_AT_S if what == "paper" else BOX_AT_S)
     Y = record(theta, sensors, SEED_OFFSET[what] + seed, max(at_s), from_rest, speed_mps,
                track_input)
     filt = service_filter(sensors, seed, FilterOptions(
         particles=particles, mode=mode, moves_drop_null=moves_drop_null,
-        start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m, kernel_delta=kernel_delta))
+        start_ramp_s=start_ramp_s, start_ramp_m=start_ramp_m, kernel_delta=kernel_delta,
+        prior_lo=prior_lo))
     held = None if hold is None else holds(len(Y), FS_HZ, [hold[0]], hold[1])
     est, found, _ = run(Y, filt, held=held, speed_mps=speed_mps)
     out = []

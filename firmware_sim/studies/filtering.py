@@ -40,7 +40,7 @@ Found = tuple[float, str, float, float]
 it: decision time (s), parameter name, located value relative to nominal, confirmation
 time (s)."""
 
-_RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m")
+_RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m", "prior_lo")
 _BANK_OVERRIDES = ("locate_min_s", "locate_max_s", "replay_s", "replay_cov_scale",
                    "redraw_from", "refine_s", "runner_up")
 
@@ -60,8 +60,10 @@ class FilterOptions:
     ``particles``, ``mode`` (``"fast"`` or ``"exact"``) and ``sensor_noise``
     (``"measured"``: tested against the data, the service's default; ``"model"``) are
     the service's ``[estimator]`` settings; ``kernel_delta`` too (with its floor).
-    ``moves_drop_null``, ``start_ramp_s`` and ``start_ramp_m`` override those options of
-    the filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
+    ``moves_drop_null``, ``start_ramp_s``, ``start_ramp_m`` and ``prior_lo`` (the prior
+    box's lower edges, e.g. the paper's (0.3, 0.3, 0.3), the default until 2026-11-29's
+    twelfth session) override those options of the filter
+    (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
     ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from``,
     ``refine_s`` and ``runner_up`` those of its fault bank
     (:class:`gateway.estimator.faultbank.FaultBankConfig`, which checks them: a bad
@@ -75,6 +77,7 @@ class FilterOptions:
     moves_drop_null: bool | None = None
     start_ramp_s: float | None = None
     start_ramp_m: float | None = None
+    prior_lo: tuple[float, float, float] | None = None
     locate_min_s: float | None = None
     locate_max_s: float | None = None
     replay_s: float | None = None
