@@ -448,8 +448,7 @@ def test_fast_mode_recovers_the_truth_like_the_exact_mode() -> None:
     lock-in's fix: at m = 500 that filter lay beyond 4 sigma at 5 s on 10 of 60 fresh
     records (seeds 6350-6409) with either prior box, so its truth check held on these
     four seeds by chance, and failed on seed 24 (Csay at 0.82, 12 sigma, in both modes)
-    when the prior's damper edge moved to 0.1 (docs/estimator.md "The twelfth
-    session")."""
+    with the prior's damper edge at 0.1 (docs/estimator.md "The twelfth session")."""
     gaps, seen = [], []
     for seed in PAIRED_SEEDS:
         S = _samples(_outputs(5000, 3, seed=seed))

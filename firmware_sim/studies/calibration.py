@@ -13,8 +13,6 @@ filter's z-score ``(mean - truth) / sigma`` and ``sigma / sigma_ML``.
 ``box --seeds 1 ... 50`` draws theta uniformly over the filter's prior box
 (:class:`gateway.estimator.rbpf_config.RBPFConfig` ``prior_lo``/``prior_hi`` times
 nominal) and runs 10 s (start-up: is the lock-in gone everywhere in the box?); no ML fit.
-The dampers' edge of that box is 0.1 since 2026-11-29 (twelfth session); rows made before
-drew them from 0.3, and the same seed now draws another theta.
 
 ``--moves-drop-null`` / ``--no-moves-drop-null`` runs the filter with that option of
 :class:`gateway.estimator.rbpf_config.RBPFConfig` on or off (default: the filter's own),

@@ -67,12 +67,7 @@ def floor_for_delta(delta: float) -> float:
 class RBPFConfig:
     """Settings of the estimator. Factors are relative to ``nominal`` (and ``ar_paper``).
 
-    ``prior_*``: uniform initial box: 0.1-2.5 x for the dampers, 0.3-3.5 x for lambda (the
-    paper's box has the dampers from 0.3; the lower edge at 0.1 since 2026-11-29's
-    twelfth session, so that a fresh estimator on a vehicle whose damper failed before
-    it started has particles there: with 0.3, Csay at 0.1 x and 5 sensors raised an
-    alert on a healthy parameter in 6 of 10 records; docs/estimator.md "The twelfth
-    session");
+    ``prior_*``: uniform initial box (paper: 0.3-2.5 x for dampers, 0.3-3.5 x for lambda);
     ``support_*``: hard bounds particles may never leave (log-space clip);
     ``reseed_*``: log-uniform box for particles re-drawn after a detected change;
     ``ar_prior``: log-uniform factor range on Ar when ``estimate_ar``;
@@ -137,7 +132,7 @@ class RBPFConfig:
     ar_paper: float = AR_PAPER_DEFAULT
     estimate_ar: bool = False
     seed: int | None = 0
-    prior_lo: tuple[float, float, float] = (0.1, 0.1, 0.3)
+    prior_lo: tuple[float, float, float] = (0.3, 0.3, 0.3)
     prior_hi: tuple[float, float, float] = (2.5, 2.5, 3.5)
     support_lo: tuple[float, float, float] = (0.05, 0.05, 0.05)
     support_hi: tuple[float, float, float] = (10.0, 10.0, 10.0)
