@@ -379,10 +379,8 @@ class WorkerLink:
         self._seq += len(samples)
         if not self._blocking and self._shed(block):
             return
-        self._pending.append(block)
-        self._outbox.append(block)
         self.stats.samples_sent += len(samples)
-        self._feed()
+        self._enqueue(block)
         while self._blocking and self._outbox:   # replay: wait for room, supervised
             try:
                 self._in_q.put(self._outbox[0], timeout=0.5)
@@ -427,6 +425,10 @@ class WorkerLink:
         """Queue an instruction after every block sent before it (never waits: the
         outbox, :meth:`_feed`); kept for replay into a restarted worker until a
         checkpoint covers it."""
+        self._enqueue(item)
+
+    def _enqueue(self, item: SampleBlock | Control) -> None:
+        """Keep ``item`` for a restart's replay and hand it on after everything before it."""
         self._pending.append(item)
         self._outbox.append(item)
         self._feed()
