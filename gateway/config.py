@@ -67,7 +67,11 @@ class EstimatorConfig:
 
     The paper's 1000 particles by default, in fast mode (steady-state gains per particle,
     docs/estimator.md "Fast mode"); ``mode = "exact"`` runs the exact recursion, the
-    reference, which on a 2-core gateway keeps up at about 500 particles.
+    reference, which on a 2-core gateway keeps up at about 500 particles. From 500
+    particles on the first particles are drawn with the dampers from 0.1 x nominal, below
+    from the paper's 0.3 x (:func:`gateway.estimator.rbpf_config.prior_lo_for`: with
+    fewer particles the wider first draw locks more often; docs/estimator.md "The
+    thirteenth session").
     ``drift_per_sqrt_s``: random-walk evolution of Csy, Csay and lambda (relative std per
     square root of second of updated data) so that the on-board filter follows a slow
     change; 0 is the paper's static-parameter filter (docs/estimator.md, "Drift").

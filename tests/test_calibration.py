@@ -40,8 +40,9 @@ def test_the_service_filter_holds_a_start_up_outlier_record() -> None:
     every parameter, the issue's bound for a single case. (The discount 0.999 alone,
     with whole states and no ramp, also brings this record's Csy to 2.0 sigma.) The
     control runs that old filter with its prior too, the paper's box from 0.3 x, pinned:
-    with the dampers' edge at 0.1 (measured in 2026-11-29's twelfth session, not adopted)
-    its first draw, and so its path on this record, is another one (Csy 0.1 sigma).
+    with the dampers' edge at 0.1 (the service's from 500 particles since 2026-11-29's
+    thirteenth session) its first draw, and so its path on this record, is another one
+    (Csy 0.1 sigma).
 
     Until 2026-11-26 this test also required the moves' static-yaw step alone (no ramp)
     to bring Csy within 3 sigma. That held with OpenBLAS's SkylakeX kernels (Csy 1.0,

@@ -98,10 +98,12 @@ def test_a_filter_the_noise_test_replaced_takes_its_detections_with_it() -> None
     Csy change at 4.86 s; the noise test then replaces it and replays the 5 s. That
     detection went with the filter that made it, and the replacement's own, the Csy step
     at 8.025 s, is collected. (Before, the run kept the first and missed the second: the
-    new filter's count started below the list's length.)"""
+    new filter's count started below the list's length.) With the paper's prior box (the
+    dampers from 0.3 x), which makes that wrong mode on this record; the service's box
+    from 0.1 x (thirteenth session) starts another Monte Carlo path that does not."""
     _, Y = detection.fault_data(0, 0.25, 3, 5334, 18.0, 8.025, noise_scale=2.0)
     gone: list = []
-    filt = service_filter(3, 5334)
+    filt = service_filter(3, 5334, FilterOptions(prior_lo=(0.3, 0.3, 0.3)))
     _, found, _ = run(Y[:10_500], filt, replaced=gone)
     assert isinstance(filt, NoiseCheckedStart) and filt.result is not None
     assert any(filt.result.replaced), filt.result

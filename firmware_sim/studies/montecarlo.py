@@ -56,18 +56,22 @@ def sigma_over_total(row: dict[str, Any]) -> np.ndarray:
 
 
 def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float,
-            filter_seeds: int, particles: int) -> dict[str, Any]:
+            filter_seeds: int, particles: int,
+            prior_edge: float | None = None) -> dict[str, Any]:
     """One record: the service's filter with ``filter_seeds`` seeds and the exact grid
-    posterior, read at the record's end ``at_s``."""
+    posterior, read at the record's end ``at_s``; ``prior_edge``: the prior box's lower
+    edge for both dampers, x nominal (None: the service's)."""
     theta = THETA_SEC42.as_array()
     Y = record(theta, sensors, SEED_OFFSET["paper"] + seed, at_s, speed_mps=speed_mps)
     ends = []
     for k in range(1, filter_seeds + 1):
-        filt = service_filter(sensors, 1000 * seed + k,
-                              FilterOptions(particles=particles, kernel_delta=delta))
+        filt = service_filter(sensors, 1000 * seed + k, FilterOptions(
+            particles=particles, kernel_delta=delta,
+            prior_lo=None if prior_edge is None else (prior_edge, prior_edge, 0.3)))
         est, _, _ = run(Y, filt, speed_mps=speed_mps)
         ends.append((np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])))
         ran = filt.config.delta                     # 0 (auto) resolved for this m
+        edge = filt.config.prior_lo[0]
     means = np.array([m for m, _ in ends])          # (filter_seeds, 3)
     sigma = np.array([s for _, s in ends]).mean(0)
     grid = grid_posterior(Y, sensors, theta, half_log_for(sensors, at_s, speed_mps),
@@ -77,7 +81,7 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
     row: dict[str, Any] = {
         "study": "montecarlo", "seed": seed, "sensors": sensors, "t_s": at_s,
         "speed_mps": speed_mps, "kernel_delta": ran, "particles": particles,
-        "filter_seeds": filter_seeds, "truth": theta.tolist(),
+        "prior_damper_edge": edge, "filter_seeds": filter_seeds, "truth": theta.tolist(),
         "mean": means.mean(0).tolist(), "sigma": sigma.tolist(), "mc_sd": mc.tolist(),
         "grid_mean": grid.mean.tolist(), "grid_sd": grid.std.tolist(),
         "grid_face_mass": [float(f"{f:.3g}") for f in grid.face_mass],
@@ -89,17 +93,20 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
 
 
 def summary(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per (sensors, speed, delta): records, and per parameter the mean of
+    """Per (sensors, speed, delta, particles, the prior's damper edge): records, and per
+    parameter the mean of
     ``mc_over_sigma``, ``sigma_over_grid``, ``offset_over_grid`` and ``sigma_over_total``
     over the records, and the smallest ``sigma_over_total`` (``..._min``)."""
-    def key_of(r: dict[str, Any]) -> tuple[int, float, float]:
-        return r["sensors"], float(r["speed_mps"]), float(r["kernel_delta"])
+    def key_of(r: dict[str, Any]) -> tuple[int, float, float, int, float]:
+        return (r["sensors"], float(r["speed_mps"]), float(r["kernel_delta"]),
+                int(r.get("particles", 1000)), float(r.get("prior_damper_edge", 0.3)))
 
     out = []
     for key in sorted({key_of(r) for r in rows}):
         case = [r for r in rows if key_of(r) == key]
         row: dict[str, Any] = {"sensors": key[0], "speed_mps": key[1],
-                               "kernel_delta": key[2], "records": len(case)}
+                               "kernel_delta": key[2], "particles": key[3],
+                               "prior_damper_edge": key[4], "records": len(case)}
         for col in ("mc_over_sigma", "sigma_over_grid", "offset_over_grid"):
             values = np.array([r[col] for r in case])
             for i, name in enumerate(PARAM_NAMES):
@@ -129,6 +136,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--filter-seeds", type=int, default=6,
                     help="filter runs per record and delta (at least 2)")
     ap.add_argument("--particles", type=int, default=1000)
+    ap.add_argument("--prior-edge", type=float, nargs="+", default=[None],
+                    help="the prior box's lower edge for both dampers, x nominal, one run "
+                         "per value (default: the service's)")
     args = ap.parse_args(argv)
     if args.what == "summary":
         for row in summary([json.loads(line) for line in sys.stdin if line.strip()]):
@@ -144,8 +154,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for seed in args.seeds:
         for ns in args.sensors:
             for delta in args.kernel_delta:
-                emit(row_for(seed, ns, args.at_s, args.speed_mps, delta,
-                             args.filter_seeds, args.particles))
+                for edge in args.prior_edge:
+                    emit(row_for(seed, ns, args.at_s, args.speed_mps, delta,
+                                 args.filter_seeds, args.particles, edge))
     return 0
 
 

@@ -37,7 +37,12 @@ log = logging.getLogger(__name__)
 def estimator_config(cfg: EstimatorConfig, fs_hz: float) -> RBPFConfig:
     """The filter's settings this configuration gives (the one mapping from the service's
     ``[estimator]`` table to the RBPF's: the builder and the checkpoint test use it)."""
-    from gateway.estimator.rbpf_config import RBPFConfig, floor_for_delta, kernel_delta_for
+    from gateway.estimator.rbpf_config import (
+        RBPFConfig,
+        floor_for_delta,
+        kernel_delta_for,
+        prior_lo_for,
+    )
 
     delta = kernel_delta_for(cfg.kernel_delta, cfg.particles)
     return RBPFConfig(fs_hz=fs_hz, n_particles=cfg.particles, sensors=cfg.sensors,
@@ -45,7 +50,8 @@ def estimator_config(cfg: EstimatorConfig, fs_hz: float) -> RBPFConfig:
                       estimate_ar=cfg.estimate_track_roughness,
                       walk_rel_per_sqrt_s=(cfg.drift_per_sqrt_s,) * 3, mode=cfg.mode,
                       start_ramp_s=cfg.start_ramp_s, start_ramp_m=cfg.start_ramp_m,
-                      delta=delta, floor_rel=floor_for_delta(delta))
+                      delta=delta, floor_rel=floor_for_delta(delta),
+                      prior_lo=prior_lo_for(cfg.particles))
 
 
 def build_estimator(cfg: EstimatorConfig, fs_hz: float) -> Estimator:
