@@ -59,3 +59,45 @@ def test_reset_parameter_redraws_only_that_parameter():
     assert np.all((after[:, 1] >= lo * 0.999) & (after[:, 1] <= hi * 1.001))
     with pytest.raises(Exception, match="expected a parameter index"):
         f.reset_parameter(7)
+
+
+class _RecordingLink:
+    """What the pipeline hands its worker link, in order (the link's own ordering is
+    tested on a real worker in tests/test_worker_messages.py)."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.sent: list[tuple[str, int]] = []
+
+    def send(self, block: list[Sample]) -> None:
+        self.sent.append(("samples", len(block)))
+
+    def baseline_reset(self, index: int) -> None:
+        self.sent.append(("reset", index))
+
+
+def test_a_reset_applies_after_every_sample_the_pipeline_has_made(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pipeline hands samples on in blocks of 20; a console reset at data time t
+    re-learns from the samples after t, so the partly filled block goes first (until
+    2026-11-29's thirteenth session it reached the worker after the reset)."""
+    from firmware_sim.scenarios import get_scenario
+    from firmware_sim.simulation import SimConfig, Simulation
+    from gateway.alerts.policy import AlertPolicy
+    from gateway.can.codec import default_codec
+    from gateway.config import Config
+    from gateway.runtime import pipeline as pipeline_module
+    from gateway.runtime.worker import BLOCK_SAMPLES
+
+    monkeypatch.setattr(pipeline_module, "WorkerLink", _RecordingLink)
+    pipe = pipeline_module.Pipeline(Config(), default_codec(), policy=AlertPolicy())
+    link = pipe.worker
+    assert isinstance(link, _RecordingLink)
+    for msg in Simulation(get_scenario("nominal"), SimConfig(duration_s=1.0, seed=3)).messages():
+        pipe.on_frame(msg)
+        if pipe.samples_out > 3 * BLOCK_SAMPLES and pipe.samples_out % BLOCK_SAMPLES:
+            break
+    made = pipe.samples_out
+    assert made % BLOCK_SAMPLES and sum(n for kind, n in link.sent if kind == "samples") < made
+    pipe.baseline_reset(2)
+    assert link.sent[-1] == ("reset", 2)
+    assert sum(n for kind, n in link.sent if kind == "samples") == made

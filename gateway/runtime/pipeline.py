@@ -270,7 +270,8 @@ class Pipeline:
 
     def baseline_reset(self, index: int) -> None:
         """Parameter ``index`` (``PARAM_NAMES`` order) re-learns from its prior, after
-        every sample sent to the worker so far."""
+        every sample made so far (a partly filled block is sent first)."""
+        self.flush()
         self.worker.baseline_reset(index)
 
     def stats(self) -> PipelineStats:
