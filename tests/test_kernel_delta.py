@@ -76,8 +76,9 @@ def test_a_larger_delta_shrinks_the_estimates_monte_carlo_error() -> None:
     Run with the paper's prior box (the dampers from 0.3 x), with which these figures
     were measured: from 500 particles the service draws from 0.1 x (thirteenth session),
     another Monte Carlo path on this one record (lambda 0.46 and 0.37 of the stated
-    sigma, 2026-11-29's twelfth session); over 20 records the box's edge did not change
-    the Monte Carlo error (docs/estimator.md "The thirteenth session")."""
+    sigma, 2026-11-29's twelfth session); over 12-14 fresh records per case (3 and 5
+    sensors, 30 and 42.5 m/s) the box's edge did not change the Monte Carlo error
+    (docs/estimator.md "The thirteenth session")."""
     old, new = (row_for(1302, 3, 5.0, 30.0, delta, 8, 1000, prior_edge=0.3)
                 for delta in (0.99, 0.999))
     assert max(old["grid_face_mass"] + new["grid_face_mass"]) < 1e-4   # the window holds it

@@ -20,7 +20,9 @@ error a run's estimate carries about the truth, the posterior's sd and the Monte
 error together (``sigma_over_total``, :func:`sigma_over_total`: 1 or more where the
 stated sigma covers both). ``summary < rows.jsonl`` averages them per (sensors, speed,
 delta), with the smallest ``sigma_over_total``. Filter seed ``1000 * seed + k``
-(k = 1 ..). A measuring tool, not used by the service.
+(k = 1 ..). ``--prior-edge 0.3 0.1`` runs each record with the prior box's damper edge
+at each value (thirteenth session; default: the service's, ``prior_lo_for``). A
+measuring tool, not used by the service.
 """
 
 from __future__ import annotations
