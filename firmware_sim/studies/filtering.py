@@ -61,8 +61,8 @@ class FilterOptions:
     (``"measured"``: tested against the data, the service's default; ``"model"``) are
     the service's ``[estimator]`` settings; ``kernel_delta`` too (with its floor).
     ``moves_drop_null``, ``start_ramp_s``, ``start_ramp_m`` and ``prior_lo`` (the prior
-    box's lower edges, e.g. (0.1, 0.1, 0.3) for the dampers' edge at 0.1 measured in
-    2026-11-29's twelfth session) override those options of the filter
+    box's lower edges, e.g. the paper's (0.3, 0.3, 0.3) where the service's filter, from
+    500 particles on, takes (0.1, 0.1, 0.3)) override those options of the filter
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
     ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from``,
     ``refine_s`` and ``runner_up`` those of its fault bank

@@ -40,6 +40,7 @@ from firmware_sim.studies.calibration import SEED_OFFSET, record
 from firmware_sim.studies.filtering import V_MPS, FilterOptions, run, service_filter
 from firmware_sim.studies.grid_posterior import grid_posterior, half_log_for
 from firmware_sim.studies.rows import emit
+from gateway.estimator.rbpf_config import PAPER_PRIOR_LO
 from gateway.model.vehicle import PARAM_NAMES, THETA_SEC42
 
 GRID_POINTS = 16
@@ -69,7 +70,8 @@ def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float
     for k in range(1, filter_seeds + 1):
         filt = service_filter(sensors, 1000 * seed + k, FilterOptions(
             particles=particles, kernel_delta=delta,
-            prior_lo=None if prior_edge is None else (prior_edge, prior_edge, 0.3)))
+            prior_lo=None if prior_edge is None else (prior_edge, prior_edge,
+                                                      PAPER_PRIOR_LO[2])))
         est, _, _ = run(Y, filt, speed_mps=speed_mps)
         ends.append((np.array(est[-1].mean[:3]), np.array(est[-1].std[:3])))
         ran = filt.config.delta                     # 0 (auto) resolved for this m

@@ -49,7 +49,9 @@ def kernel_delta_for(configured: float, particles: int) -> float:
     return AUTO_DELTA if particles >= AUTO_DELTA_MIN_PARTICLES else PAPER_DELTA
 
 
-WIDE_PRIOR_LO = (0.1, 0.1, 0.3)
+PAPER_PRIOR_LO = (0.3, 0.3, 0.3)
+"""The paper's prior box's lower edges (x nominal: Csy, Csay, lambda): the bare filter's."""
+WIDE_PRIOR_LO = (0.1, 0.1, PAPER_PRIOR_LO[2])
 """The lower edges (x nominal: Csy, Csay, lambda) of the service's prior box from
 :data:`WIDE_PRIOR_MIN_PARTICLES` particles on: the dampers from 0.1 instead of the
 paper's 0.3, so that a fresh filter on a vehicle whose damper failed before it started
@@ -65,9 +67,9 @@ m = 250 on one (none); at m = 500 and 1000 nothing measured was worse."""
 
 def prior_lo_for(particles: int) -> tuple[float, float, float]:
     """The lower edges of the prior box the service's filter draws its first particles
-    from: :data:`WIDE_PRIOR_LO` from :data:`WIDE_PRIOR_MIN_PARTICLES` particles on, the
-    paper's (0.3, 0.3, 0.3) below."""
-    return WIDE_PRIOR_LO if particles >= WIDE_PRIOR_MIN_PARTICLES else (0.3, 0.3, 0.3)
+    from: :data:`WIDE_PRIOR_LO` from :data:`WIDE_PRIOR_MIN_PARTICLES` particles on,
+    :data:`PAPER_PRIOR_LO` below."""
+    return WIDE_PRIOR_LO if particles >= WIDE_PRIOR_MIN_PARTICLES else PAPER_PRIOR_LO
 
 
 def floor_for_delta(delta: float) -> float:
@@ -154,7 +156,7 @@ class RBPFConfig:
     ar_paper: float = AR_PAPER_DEFAULT
     estimate_ar: bool = False
     seed: int | None = 0
-    prior_lo: tuple[float, float, float] = (0.3, 0.3, 0.3)
+    prior_lo: tuple[float, float, float] = PAPER_PRIOR_LO
     prior_hi: tuple[float, float, float] = (2.5, 2.5, 3.5)
     support_lo: tuple[float, float, float] = (0.05, 0.05, 0.05)
     support_hi: tuple[float, float, float] = (10.0, 10.0, 10.0)
