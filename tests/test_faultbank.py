@@ -46,7 +46,8 @@ def test_vectorised_cusum_is_pages_recursion() -> None:
                                  dict(h_nats=0.0), dict(locate_s=-1.0),
                                  dict(locate_cov_scale=0.5), dict(replay_cov_scale=0.9),
                                  dict(locate_max_s=0.5),
-                                 dict(replay_s=-1.0), dict(redraw_from="prior")])
+                                 dict(replay_s=-1.0), dict(redraw_from="prior"),
+                                 dict(runner_by="watch")])
 def test_bad_bank_settings_are_refused(bad: dict) -> None:
     with pytest.raises(EstimatorError, match="expected"):
         FaultBankConfig(**bad)

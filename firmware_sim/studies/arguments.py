@@ -91,6 +91,10 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--runner-up", action=argparse.BooleanOptionalAction, default=None,
                     help="where a location finds no change, locate the runner-up damper "
                          "next from the same look-back (default: the bank's own, on)")
+    ap.add_argument("--runner-by", choices=("replay", "cusum"), default=None,
+                    help="how the runner-up is chosen: by each damper's change-time "
+                         "search over the look-back, or by the watch's CUSUMs (the bank "
+                         "before 2026-11-30; default: the bank's own, replay)")
 
 
 def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> FilterOptions:
@@ -103,6 +107,6 @@ def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> Fil
             redraw_from=args.redraw_from, locate_min_s=args.locate_min_s,
             locate_max_s=args.locate_max_s, replay_s=args.replay_s,
             replay_cov_scale=args.replay_cov_scale, refine_s=args.refine_s,
-            runner_up=args.runner_up)
+            runner_up=args.runner_up, runner_by=args.runner_by)
     except InputError as exc:
         ap.error(str(exc))

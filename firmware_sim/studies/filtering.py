@@ -42,7 +42,7 @@ time (s)."""
 
 _RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m", "prior_lo")
 _BANK_OVERRIDES = ("locate_min_s", "locate_max_s", "replay_s", "replay_cov_scale",
-                   "redraw_from", "refine_s", "runner_up")
+                   "redraw_from", "refine_s", "runner_up", "runner_by")
 
 
 def kernel_delta_problem(value: float) -> str | None:
@@ -65,7 +65,7 @@ class FilterOptions:
     500 particles on, takes (0.1, 0.1, 0.3)) override those options of the filter
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
     ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from``,
-    ``refine_s`` and ``runner_up`` those of its fault bank
+    ``refine_s``, ``runner_up`` and ``runner_by`` those of its fault bank
     (:class:`gateway.estimator.faultbank.FaultBankConfig`, which checks them: a bad
     value raises :class:`gateway.errors.InputError` here, before any run).
     """
@@ -85,6 +85,7 @@ class FilterOptions:
     redraw_from: str | None = None
     refine_s: float | None = None
     runner_up: bool | None = None
+    runner_by: str | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in ("fast", "exact"):
@@ -188,5 +189,6 @@ def filter_columns(filt: Filter) -> dict[str, Any]:
             "moves_drop_null": filt.config.moves_drop_null,
             **{name: None if bank is None else getattr(bank, name)
                for name in ("redraw_from", "locate_min_s", "locate_s", "locate_max_s",
-                            "replay_s", "replay_cov_scale", "refine_s", "runner_up")},
+                            "replay_s", "replay_cov_scale", "refine_s", "runner_up",
+                            "runner_by")},
             "kernel_delta": filt.config.delta}

@@ -45,9 +45,10 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   log-likelihood ratios to the reference are summed for ``locate_s``, and the best grid
   value, if it beats the reference by ``h / 2``, is the :class:`Detection`; if it does
   not beat the reference at all, that parameter did not change: since 2026-11-29
-  (``runner_up``) the watch's best hypothesis on another damper, if its CUSUM was
-  positive at the confirmation, is located next, at once, replaying from the look-back
-  before the confirmation (:meth:`FaultBank._runner_up`); otherwise every filter
+  (``runner_up``) another damper is located next, at once, replaying from the look-back
+  before the confirmation (:meth:`FaultBank._runner_up`): since 2026-11-30
+  (``runner_by``) the damper and side whose change-time search over that look-back sums
+  the most (:meth:`FaultBank._best_runner`), if that crosses ``h``; otherwise every filter
   restarts from the reference's state and the bank watches again. In
   between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
   later look costs no more false detections). Optionally (``locate_min_s`` below
@@ -136,6 +137,8 @@ estimates. h / 2 = 12.5 nats was measured too (docs/estimator.md "Located alerts
 the likelihood interval")."""
 REDRAWS = ("likelihood", "range")
 """How a detection redraws its parameter (:attr:`FaultBankConfig.redraw_from`)."""
+RUNNERS = ("replay", "cusum")
+"""How a location's runner-up is chosen (:attr:`FaultBankConfig.runner_by`)."""
 
 
 @dataclass(frozen=True)
@@ -174,8 +177,13 @@ class FaultBankConfig:
     it counts towards ``hold_s``, so the bank is back to watching ``max(hold_s,
     refine_s)`` after a detection; docs/estimator.md "The location refines its interval
     after a detection"); ``runner_up``: where a location finds no change, locate the
-    watch's runner-up damper next, from the same look-back (:meth:`FaultBank._runner_up`;
-    False: watch again, as before 2026-11-29's eighth session).
+    runner-up damper next, from the same look-back (:meth:`FaultBank._runner_up`;
+    False: watch again, as before 2026-11-29's eighth session); ``runner_by``: how the
+    runner-up is chosen (``"replay"``, since 2026-11-30: the damper and side whose
+    location grid's change-time search over the look-back sums the most, if that
+    crosses ``h_nats`` (:meth:`FaultBank._best_runner`); ``"cusum"``: the watch's best
+    hypothesis on another damper at the confirmation, if its CUSUM was positive, as
+    before).
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -194,11 +202,15 @@ class FaultBankConfig:
     redraw_from: str = "likelihood"
     refine_s: float = 1.0
     runner_up: bool = True
+    runner_by: str = "replay"
 
     def __post_init__(self) -> None:
         if self.redraw_from not in REDRAWS:
             raise EstimatorError(f"expected redraw_from from {REDRAWS}, "
                                  f"got {self.redraw_from!r}")
+        if self.runner_by not in RUNNERS:
+            raise EstimatorError(f"expected runner_by from {RUNNERS}, "
+                                 f"got {self.runner_by!r}")
         f = np.asarray(self.factors, dtype=float)
         if f.ndim != 1 or len(f) == 0 or np.any(~(f > 0)) or np.any(f == 1.0) \
                 or len(set(self.factors)) != len(f):
@@ -297,6 +309,7 @@ class FaultBank:
         self.lookback = Lookback(0, 1, self.n_params)  # sized by set_model
         self._memo: tuple[bytes, tuple[tuple[np.ndarray, ...], Lookback],
                           Detection | None] | None = None   # the last location (_locate)
+        self._runner_memo: tuple[bytes, tuple[int, float]] | None = None  # _best_runner
 
     # ----------------------------------------------------------------- state
     @property
@@ -693,8 +706,10 @@ class FaultBank:
         return self._located(t_s) if self._settled(len(Y), self.g.max()) else None
 
     def _runner_up(self, p: int) -> float:
-        """The watch's best hypothesis (1 + its index) on a damper other than ``p``, if its
-        CUSUM is positive; 0 for none.
+        """Whether a runner-up is pending after this location of parameter ``p``: with
+        ``runner_by = "replay"`` 1 where another damper exists (:meth:`_best_runner`
+        picks it when it is needed); with ``"cusum"`` the watch's best hypothesis (1 + its
+        index) on a damper other than ``p``, if its CUSUM is positive; 0 for none.
 
         A crossing says that something changed (``exp(-h)`` bounds the chance of one in a
         correct model), not always what: in the first quarter second after a large damper
@@ -708,8 +723,52 @@ class FaultBank:
         others = [j for j in range(self.n_hyp) if j // nf not in (p, CONICITY)]
         if not others:
             return 0.0
+        if self.config.runner_by == "replay":
+            return 1.0
         j = max(others, key=lambda i: self.g[i])
         return float(j + 1) if self.g[j] > 0.0 else 0.0
+
+    def _best_runner(self, p: int, at: int) -> tuple[int, float]:
+        """The runner-up of a location of parameter ``p``: of every other damper's drop and
+        rise, the one whose location grid, run with steady gains from its likeliest change
+        time in the look-back before count ``at`` (:meth:`_glr_best`), sums the largest
+        log-likelihood ratio to the reference. Returns (1 + a hypothesis of that damper on
+        that side, the sum), or (0, h) where no sum is over the watch's threshold ``h``
+        (the runner-up must cross it on its own, as the watch's CUSUM would: a location
+        of lambda x 0.7 that found no change handed a Csay rise at 10.5 nats to its
+        location, which put it at 1.4 x nominal, seed 6573, 3 sensors); the bank's state
+        is as it was.
+
+        The watch's CUSUMs name a runner-up poorly: their filters ran at the hypotheses'
+        thetas before the change, and their states, estimated under those wrong values,
+        can hide the change's first evidence (seed 6501's failed lateral damper, replayed
+        with 3 sensors: a quarter second after the step every Csy drop's CUSUM was at 0,
+        the conicity's at 28.7, the best other one a Csay rise at 2.2; the conicity's
+        location then summed 3 s undecided, and the Csay rise's found nothing, where the
+        Csy drop's search summed 7341 nats at its end). The change-time search starts
+        every grid filter from the reference's state before the change, as the location
+        itself will (the generalised likelihood ratio over the damper, the side and the
+        change time). Computed once per state (the estimator rescans)."""
+        key = self._memo_key(-1 - p, 0.0, at)
+        if self._runner_memo is not None and self._runner_memo[0] == key:
+            return self._runner_memo[1]
+        starts = self.lookback.starts(at)
+        x0, vec0 = self.x.copy(), self.vec.copy()
+        best, nf = (0, self.config.h_nats), len(self.factors)
+        for q in range(N_THETA):
+            if q in (p, CONICITY) or not starts:
+                continue
+            for side in (-1.0, 1.0):
+                self.vec[_MODE], self.vec[_LOC_P], self.vec[_LOC_SIDE] = _LOCATE, q, side
+                self._solve()
+                total = self._glr_best(starts)[1]
+                if total > best[1]:
+                    fi = int(np.argmin(self.factors) if side < 0 else np.argmax(self.factors))
+                    best = (1 + q * nf + fi, total)
+        self.x, self.vec = x0, vec0
+        self._solve()
+        self._runner_memo = (key, best)
+        return best
 
     def _ratios(self, LL: np.ndarray, full: np.ndarray) -> np.ndarray:
         """Each hypothesis's log-likelihood ratio to the reference (k, J) from the
@@ -758,6 +817,20 @@ class FaultBank:
         if len(Y) == 0:                       # nothing to replay: the newest snapshot
             n, xs, ref0 = starts[-1]
             return n, self._without_null(xs[None], ref0[None])[0], ref0
+        best = self._glr_best(starts)[0]
+        x, ref0 = self._ref_at(starts, best, Y, full)
+        return best, x[0], ref0
+
+    def _glr_best(self, starts: list[tuple[int, np.ndarray, np.ndarray]]
+                  ) -> tuple[int, float]:
+        """The change-time search of :meth:`_glr_start`: the likeliest change time (a
+        count) and the location grid's largest summed log-likelihood ratio from it to the
+        end of the look-back (-inf: nothing to replay)."""
+        assert self._gains is not None and self._model is not None
+        n_first = starts[0][0]
+        Y, full = self.lookback.samples(n_first)
+        if len(Y) == 0:
+            return starts[-1][0], -np.inf
         end = n_first + len(Y)
         sums: dict[int, float] = {}
 
@@ -772,8 +845,7 @@ class FaultBank:
         best_of([n for n, _, _ in starts])
         coarse = best_of(range(page - GLR_BACK, page + GLR_STEP, GLR_STEP))
         best = best_of(range(coarse - GLR_STEP + 1, coarse + GLR_STEP))
-        x, ref0 = self._ref_at(starts, best, Y, full)
-        return best, x[0], ref0
+        return best, sums[best]
 
     def _page_start(self, starts: list[tuple[int, np.ndarray, np.ndarray]], Y: np.ndarray,
                     full: np.ndarray) -> int:
@@ -899,6 +971,8 @@ class FaultBank:
         p = int(self.vec[_LOC_P])
         if not self.g[best] > self.config.h_nats / 2.0:
             runner, at = int(self.vec[_RUNNER]) - 1, int(self.vec[_RUNNER_AT])
+            if runner >= 0 and self.config.runner_by == "replay" and self.lookback.starts(at):
+                runner = self._best_runner(p, at)[0] - 1
             self.vec[_RUNNER] = 0.0
             if runner >= 0 and self.lookback.starts(at):
                 # the change was not where the crossing pointed: the runner-up next
