@@ -679,6 +679,22 @@ def test_checkpoint_while_refining_restores_bit_exact_and_an_old_one_does_not_re
     c.run(smp[k:k + 500], output_every=50)
 
 
+@pytest.mark.slow
+def test_a_checkpoint_from_before_the_replayed_runner_up_keeps_the_watchs() -> None:
+    """A checkpoint written before ``runner_by`` (its bank's settings without it) restores
+    with the runner-up the watch's CUSUMs named, the filter it was made with, and runs on;
+    the service then sets it aside as made with other settings."""
+    from gateway.estimator import checkpoint as ckpt
+
+    a, smp, k = _locating_bank(14)
+    meta, arrays = ckpt.unpack(a.checkpoint())
+    assert meta["config"]["faults"]["runner_by"] == "replay"
+    del meta["config"]["faults"]["runner_by"]
+    c = RBPF.restore(ckpt.pack(meta, arrays))
+    assert c.config.faults is not None and c.config.faults.runner_by == "cusum"
+    c.run(smp[k:k + 500], output_every=50)
+
+
 def test_a_range_redraw_is_log_uniform_with_equal_weights() -> None:
     bank = FaultBank(FaultBankConfig(redraw_from="range"), 3, FS_HZ, AR_PAPER_DEFAULT)
     det = _detection(np.linspace(0.0, 30.0, 15))

@@ -1095,6 +1095,8 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
         # ... and before 2026-11-29 (eighth session), watched again after a location that
         # found no change
         bank.setdefault("runner_up", False)
+        # ... and before 2026-11-30 (fourteenth session), took the watch's CUSUMs' runner-up
+        bank.setdefault("runner_by", "cusum")
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
         if isinstance(v, list):
