@@ -4,14 +4,14 @@ The timing study's ``lateral-failing`` log of seed 6501 (3 sensors, aligned, 20 
 0.25 at 10 s) through ``gateway replay`` at m = 1000. The patches sit at module level so
 that the spawned worker, which re-imports this file as ``__mp_main__``, logs too: every
 scan block from 9.9 to 14 s that crosses a 100 ms mark (CUSUM maximum and its
-hypothesis), each location (its best hypothesis, the CUSUMs before it) and each restart.
+hypothesis), each location (its best hypothesis, the CUSUMs or the grid's sums
+before it) and each restart; then the alerts (``firmware_sim.studies.timing.run_case``).
 Fourteenth session (2026-11-30), docs/estimator.md "The fourteenth session". Run from a
 directory without ``gateway/`` in it, with ``PYTHONPATH`` the tree.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import tempfile
 from pathlib import Path
@@ -43,7 +43,8 @@ def _logged(name: str) -> Any:
 
     def call(self: Any, *a: Any, **k: Any) -> Any:
         if name == "_locate_now" and _T["t"] > 8:
-            print("   CUSUMs before:", np.round(self.g.reshape(3, -1), 1).tolist(), flush=True)
+            print("   CUSUMs (or grid sums) before:",
+                  np.round(self.g.reshape(3, -1), 1).tolist(), flush=True)
         out = inner(self, *a, **k)
         if _T["t"] > 8:
             extra = f" best={a[0]} t={a[1]:.3f} -> {out}" if name == "_locate_now" else ""
@@ -58,26 +59,12 @@ for _name in ("start", "stop", "_locate_now", "_watch_again"):
 
 
 def main(seed: int) -> None:
-    from firmware_sim.output import drop_frames, write_log
-    from firmware_sim.scenarios import get_scenario
-    from firmware_sim.simulation import SimConfig, Simulation
-    from firmware_sim.studies.timing import set_clocks
-    from gateway.config import Config
-    from gateway.offline.replay import replay
+    from firmware_sim.studies.timing import run_case
 
-    sim = Simulation(get_scenario("lateral-failing"),
-                     SimConfig(duration_s=20.0, seed=seed, noise_by_sample=True))
-    set_clocks(sim, "aligned", np.random.default_rng(10_000 + seed))
-    log = Path(tempfile.mkdtemp()) / "lateral-failing.log"
-    write_log(drop_frames(sim.messages(), 0.0, np.random.default_rng(20_000 + seed)), log)
-    base = Config()
-    cfg = dataclasses.replace(base, estimator=dataclasses.replace(
-        base.estimator, particles=1000, sensors=3, seed=seed))
-    for e in replay(log, cfg).estimates:
-        if 9.0 <= e.t_s <= 17.0 and round(e.t_s * 10) % 5 == 0:
-            print("estimate", round(e.t_s, 2),
-                  [round(m / n, 3) for m, n in zip(e.mean[:3], NOMINAL, strict=True)],
-                  round(e.ess), e.located)
+    row = run_case(seed, "aligned", "sinc", 3, 20.0, 1000, "lateral-failing",
+                   Path(tempfile.mkdtemp()))
+    print("alerts", row["alerts"], "at the end, relative to the truth",
+          [round(r, 3) for r in row["rel_end"]])
 
 
 if __name__ == "__main__":
