@@ -14,7 +14,7 @@ import argparse
 from firmware_sim.studies.filtering import FilterOptions, kernel_delta_problem
 from firmware_sim.truth import TRACK_INPUTS
 from gateway.errors import InputError
-from gateway.estimator.faultbank import REDRAWS
+from gateway.estimator.faultbank import REDRAWS, RUNNERS
 from gateway.model.vehicle import PARAM_NAMES
 
 
@@ -91,7 +91,7 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--runner-up", action=argparse.BooleanOptionalAction, default=None,
                     help="where a location finds no change, locate the runner-up damper "
                          "next from the same look-back (default: the bank's own, on)")
-    ap.add_argument("--runner-by", choices=("replay", "cusum"), default=None,
+    ap.add_argument("--runner-by", choices=RUNNERS, default=None,
                     help="how the runner-up is chosen: by each damper's change-time "
                          "search over the look-back, or by the watch's CUSUMs (the bank "
                          "before 2026-11-30; default: the bank's own, replay)")
