@@ -683,8 +683,11 @@ def test_checkpoint_while_refining_restores_bit_exact_and_an_old_one_does_not_re
 def test_a_checkpoint_from_before_the_replayed_runner_up_keeps_the_watchs() -> None:
     """A checkpoint written before ``runner_by`` (its bank's settings without it) restores
     with the runner-up the watch's CUSUMs named, the filter it was made with, and runs on;
-    the service then sets it aside as made with other settings."""
+    the service's settings check names the difference (and so sets it aside)."""
+    import dataclasses
+
     from gateway.estimator import checkpoint as ckpt
+    from gateway.runtime.pipeline import _differences
 
     a, smp, k = _locating_bank(14)
     meta, arrays = ckpt.unpack(a.checkpoint())
@@ -693,6 +696,8 @@ def test_a_checkpoint_from_before_the_replayed_runner_up_keeps_the_watchs() -> N
     c = RBPF.restore(ckpt.pack(meta, arrays))
     assert c.config.faults is not None and c.config.faults.runner_by == "cusum"
     c.run(smp[k:k + 500], output_every=50)
+    assert _differences(c.config, a.config, set()) == ["faults.runner_by 'cusum' -> 'replay'"]
+    assert dataclasses.replace(c.config.faults, runner_by="replay") == a.config.faults
 
 
 def test_a_range_redraw_is_log_uniform_with_equal_weights() -> None:
