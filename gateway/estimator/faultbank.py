@@ -752,11 +752,11 @@ class FaultBank:
         key = self._memo_key(-1 - p, 0.0, at)
         if self._runner_memo is not None and self._runner_memo[0] == key:
             return self._runner_memo[1]
-        starts = self.lookback.starts(at)
+        starts = self.lookback.starts(at)          # not empty: the caller checked
         x0, vec0 = self.x.copy(), self.vec.copy()
         best, nf = (0, self.config.h_nats), len(self.factors)
         for q in range(N_THETA):
-            if q in (p, CONICITY) or not starts:
+            if q in (p, CONICITY):
                 continue
             for side in (-1.0, 1.0):
                 self.vec[_MODE], self.vec[_LOC_P], self.vec[_LOC_SIDE] = _LOCATE, q, side
