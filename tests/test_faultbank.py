@@ -47,7 +47,7 @@ def test_vectorised_cusum_is_pages_recursion() -> None:
                                  dict(locate_cov_scale=0.5), dict(replay_cov_scale=0.9),
                                  dict(locate_max_s=0.5),
                                  dict(replay_s=-1.0), dict(redraw_from="prior"),
-                                 dict(runner_by="watch")])
+                                 dict(runner_by="watch"), dict(located_by="cusum")])
 def test_bad_bank_settings_are_refused(bad: dict) -> None:
     with pytest.raises(EstimatorError, match="expected"):
         FaultBankConfig(**bad)
@@ -126,9 +126,13 @@ def test_a_crossing_that_names_the_wrong_parameter_locates_the_runner_up_at_once
     location finds no change after 2.3 s. Watching again from scratch then found Csy at
     +5.2 s, the campaign's one first alert after +5 s (2026-11-29). Locating the
     runner-up, Csy, from the look-back before the first confirmation finds it at the
-    end of that location, its interval holding the truth."""
+    end of that location, its interval holding the truth. Both with the confirmation
+    locating the crossing's own parameter (``located_by = "crossing"``): since
+    2026-11-30's fifteenth session the service's bank asks the look-back's search at the
+    confirmation and locates Csy at once (tests/test_located_by_search.py)."""
     old, row = (fault_row(0, 0.25, 3, 4902, seconds=18.0, fault_at_s=8.025,
-                          options=FilterOptions(runner_up=r)) for r in (False, True))
+                          options=FilterOptions(runner_up=r, located_by="crossing"))
+                for r in (False, True))
     assert old["detect_s"] is not None and old["detect_s"] > 4.0, old   # the case's premise
     assert row["detect_s"] is not None and row["detect_s"] <= 3.0, row
     lo, hi = row["located_like"]
@@ -680,10 +684,16 @@ def test_checkpoint_while_refining_restores_bit_exact_and_an_old_one_does_not_re
 
 
 @pytest.mark.slow
-def test_a_checkpoint_from_before_the_replayed_runner_up_keeps_the_watchs() -> None:
-    """A checkpoint written before ``runner_by`` (its bank's settings without it) restores
-    with the runner-up the watch's CUSUMs named, the filter it was made with, and runs on;
-    the service's settings check names the difference (and so sets it aside)."""
+@pytest.mark.parametrize("missing, restored", [
+    (("runner_by", "located_by"), {"runner_by": "cusum", "located_by": "crossing"}),
+    (("located_by",), {"located_by": "crossing"})])
+def test_a_checkpoint_from_before_a_bank_setting_keeps_the_filter_it_was_made_with(
+        missing: tuple[str, ...], restored: dict[str, str]) -> None:
+    """A checkpoint written before ``runner_by`` (its bank's settings without it, nor
+    ``located_by``), or before ``located_by`` alone, restores with the rules it was made
+    with (the watch's CUSUMs name the runner-up; a conicity crossing locates the
+    conicity) and runs on; the service's settings check names each difference (and so
+    sets it aside)."""
     import dataclasses
 
     from gateway.estimator import checkpoint as ckpt
@@ -691,13 +701,18 @@ def test_a_checkpoint_from_before_the_replayed_runner_up_keeps_the_watchs() -> N
 
     a, smp, k = _locating_bank(14)
     meta, arrays = ckpt.unpack(a.checkpoint())
-    assert meta["config"]["faults"]["runner_by"] == "replay"
-    del meta["config"]["faults"]["runner_by"]
+    now = {"runner_by": "replay", "located_by": "search"}      # the service's bank
+    assert {n: meta["config"]["faults"][n] for n in now} == now
+    for name in missing:
+        del meta["config"]["faults"][name]
     c = RBPF.restore(ckpt.pack(meta, arrays))
-    assert c.config.faults is not None and c.config.faults.runner_by == "cusum"
+    assert c.config.faults is not None
+    assert {n: getattr(c.config.faults, n) for n in restored} == restored
     c.run(smp[k:k + 500], output_every=50)
-    assert _differences(c.config, a.config, set()) == ["faults.runner_by 'cusum' -> 'replay'"]
-    assert dataclasses.replace(c.config.faults, runner_by="replay") == a.config.faults
+    assert _differences(c.config, a.config, set()) == [      # in the bank's field order
+        f"faults.{n} {restored[n]!r} -> {now[n]!r}" for n in now if n in restored]
+    assert dataclasses.replace(c.config.faults, **{n: now[n] for n in restored}) \
+        == a.config.faults
 
 
 def test_a_range_redraw_is_log_uniform_with_equal_weights() -> None:

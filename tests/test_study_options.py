@@ -23,11 +23,13 @@ def test_no_options_give_the_service_filter_and_each_override_lands_where_it_bel
     assert plain.config.faults.replay_cov_scale == FaultBankConfig.replay_cov_scale
     tuned = service_filter(3, 1, FilterOptions(particles=16, replay_cov_scale=3.0,
                                                locate_max_s=4.0, start_ramp_s=0.25,
-                                               moves_drop_null=False, sensor_noise="model"))
+                                               moves_drop_null=False, sensor_noise="model",
+                                               located_by="crossing"))
     assert not isinstance(tuned, NoiseCheckedStart)
     cfg = tuned.config
     assert cfg.faults is not None
     assert (cfg.faults.replay_cov_scale, cfg.faults.locate_max_s) == (3.0, 4.0)
+    assert (cfg.faults.located_by, plain.config.faults.located_by) == ("crossing", "search")
     assert (cfg.start_ramp_s, cfg.moves_drop_null, cfg.n_particles) == (0.25, False, 16)
     assert cfg.faults.replay_s == plain.config.faults.replay_s      # untouched
 
@@ -37,6 +39,7 @@ def test_no_options_give_the_service_filter_and_each_override_lands_where_it_bel
     ({"replay_cov_scale": 0.5}, "replay_cov_scale >= 1"),
     ({"locate_max_s": 0.1}, "locate_max_s >= locate_s"),
     ({"redraw_from": "hat"}, "expected redraw_from from"),
+    ({"located_by": "cusum"}, "expected located_by from"),
     ({"particles": 0}, "expected at least 1 particle, got 0"),
 ])
 def test_a_bad_option_is_refused_with_what_was_expected(bad: dict[str, object],

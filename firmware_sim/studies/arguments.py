@@ -14,7 +14,7 @@ import argparse
 from firmware_sim.studies.filtering import FilterOptions, kernel_delta_problem
 from firmware_sim.truth import TRACK_INPUTS
 from gateway.errors import InputError
-from gateway.estimator.faultbank import REDRAWS, RUNNERS
+from gateway.estimator.faultbank import LOCATED_BY, REDRAWS, RUNNERS
 from gateway.model.vehicle import PARAM_NAMES
 
 
@@ -95,6 +95,11 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
                     help="how the runner-up is chosen: by each damper's change-time "
                          "search over the look-back, or by the watch's CUSUMs (the bank "
                          "before 2026-11-30; default: the bank's own, replay)")
+    ap.add_argument("--located-by", choices=LOCATED_BY, default=None,
+                    help="what a crossing on the conicity locates: the parameter and side "
+                         "the look-back's change-time search favours, or the conicity on "
+                         "the crossing's side (the bank before 2026-11-30's fifteenth "
+                         "session; default: the bank's own, search)")
 
 
 def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> FilterOptions:
@@ -107,6 +112,7 @@ def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> Fil
             redraw_from=args.redraw_from, locate_min_s=args.locate_min_s,
             locate_max_s=args.locate_max_s, replay_s=args.replay_s,
             replay_cov_scale=args.replay_cov_scale, refine_s=args.refine_s,
-            runner_up=args.runner_up, runner_by=args.runner_by)
+            runner_up=args.runner_up, runner_by=args.runner_by,
+            located_by=args.located_by)
     except InputError as exc:
         ap.error(str(exc))

@@ -42,7 +42,7 @@ time (s)."""
 
 _RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m", "prior_lo")
 _BANK_OVERRIDES = ("locate_min_s", "locate_max_s", "replay_s", "replay_cov_scale",
-                   "redraw_from", "refine_s", "runner_up", "runner_by")
+                   "redraw_from", "refine_s", "runner_up", "runner_by", "located_by")
 
 
 def kernel_delta_problem(value: float) -> str | None:
@@ -65,7 +65,7 @@ class FilterOptions:
     500 particles on, takes (0.1, 0.1, 0.3)) override those options of the filter
     (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
     ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from``,
-    ``refine_s``, ``runner_up`` and ``runner_by`` those of its fault bank
+    ``refine_s``, ``runner_up``, ``runner_by`` and ``located_by`` those of its fault bank
     (:class:`gateway.estimator.faultbank.FaultBankConfig`, which checks them: a bad
     value raises :class:`gateway.errors.InputError` here, before any run).
     """
@@ -86,6 +86,7 @@ class FilterOptions:
     refine_s: float | None = None
     runner_up: bool | None = None
     runner_by: str | None = None
+    located_by: str | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in ("fast", "exact"):
@@ -190,5 +191,5 @@ def filter_columns(filt: Filter) -> dict[str, Any]:
             **{name: None if bank is None else getattr(bank, name)
                for name in ("redraw_from", "locate_min_s", "locate_s", "locate_max_s",
                             "replay_s", "replay_cov_scale", "refine_s", "runner_up",
-                            "runner_by")},
+                            "runner_by", "located_by")},
             "kernel_delta": filt.config.delta}

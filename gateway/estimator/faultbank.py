@@ -49,7 +49,10 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   before the confirmation (:meth:`FaultBank._runner_up`): since 2026-11-30
   (``runner_by``) the damper and side whose change-time search over that look-back sums
   the most (:meth:`FaultBank._best_runner`), if that crosses ``h``; otherwise every filter
-  restarts from the reference's state and the bank watches again. In
+  restarts from the reference's state and the bank watches again. (Since 2026-11-30's
+  fifteenth session, ``located_by``, the confirmation itself asks that search which
+  parameter and side to locate: among the dampers for a crossing on a damper, among
+  every parameter for one on the conicity.) In
   between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
   later look costs no more false detections). Optionally (``locate_min_s`` below
   ``locate_s``; off by default) the sum stops early, after at least ``locate_min_s``, at
@@ -139,6 +142,8 @@ REDRAWS = ("likelihood", "range")
 """How a detection redraws its parameter (:attr:`FaultBankConfig.redraw_from`)."""
 RUNNERS = ("replay", "cusum")
 """How a location's runner-up is chosen (:attr:`FaultBankConfig.runner_by`)."""
+LOCATED_BY = ("search", "crossing")
+"""What a confirmed crossing locates (:attr:`FaultBankConfig.located_by`)."""
 
 
 @dataclass(frozen=True)
@@ -183,7 +188,12 @@ class FaultBankConfig:
     location grid's change-time search over the look-back sums the most, if that
     crosses ``h_nats`` (:meth:`FaultBank._best_runner`); ``"cusum"``: the watch's best
     hypothesis on another damper at the confirmation, if its CUSUM was positive, as
-    before).
+    before); ``located_by``: what a confirmed crossing locates (``"search"``, since
+    2026-11-30's fifteenth session: the parameter and side whose change-time search over
+    the look-back sums the most, if that crosses ``h_nats``, among the dampers' drops and
+    rises for a crossing on a damper, among every parameter's for one on the conicity
+    (:meth:`FaultBank._best_search`); ``"crossing"``: the crossing's parameter and side,
+    as before).
     """
 
     factors: tuple[float, ...] = (0.25, 0.4, 0.6, 1.6, 2.5)
@@ -203,6 +213,7 @@ class FaultBankConfig:
     refine_s: float = 1.0
     runner_up: bool = True
     runner_by: str = "replay"
+    located_by: str = "search"
 
     def __post_init__(self) -> None:
         if self.redraw_from not in REDRAWS:
@@ -211,6 +222,9 @@ class FaultBankConfig:
         if self.runner_by not in RUNNERS:
             raise EstimatorError(f"expected runner_by from {RUNNERS}, "
                                  f"got {self.runner_by!r}")
+        if self.located_by not in LOCATED_BY:
+            raise EstimatorError(f"expected located_by from {LOCATED_BY}, "
+                                 f"got {self.located_by!r}")
         f = np.asarray(self.factors, dtype=float)
         if f.ndim != 1 or len(f) == 0 or np.any(~(f > 0)) or np.any(f == 1.0) \
                 or len(set(self.factors)) != len(f):
@@ -309,7 +323,7 @@ class FaultBank:
         self.lookback = Lookback(0, 1, self.n_params)  # sized by set_model
         self._memo: tuple[bytes, tuple[tuple[np.ndarray, ...], Lookback],
                           Detection | None] | None = None   # the last location (_locate)
-        self._runner_memo: tuple[bytes, tuple[int, float]] | None = None  # _best_runner
+        self._runner_memo: tuple[object, tuple[int, float]] | None = None  # _best_search
 
     # ----------------------------------------------------------------- state
     @property
@@ -674,12 +688,41 @@ class FaultBank:
         (or None) if that sum already decides. Without one (or before the look-back has
         a snapshot), every filter starts from ``best``'s state here.
 
+        From the watch (``located_by = "search"``), which parameter and side to locate
+        is first asked of the look-back's change-time search (:meth:`_best_search`), as
+        the runner-up's is: among the dampers' drops and rises for a crossing on a
+        damper, among every parameter's for one on the conicity. Where one crosses
+        ``h``, a damper is located from the look-back as a runner-up would be (with no
+        runner-up after it), the conicity on the search's side; else the crossing's own.
+        The crossing's CUSUMs name the change poorly in its first quarter second, their
+        filters having run at wrong values before it: seeds 4902 and 6501 (Csy x 0.25, 3
+        sensors) crossed on lambda at 35.0 and 28.7 nats where the searches summed 45.0
+        and 53.5 for the Csy drop (35.7 and 19.0 for the conicity), and the conicity's
+        location, which does not replay, summed up to ``locate_max_s`` undecided before
+        the runner-up was asked; seed 6611 (5 sensors) crossed on a Csy *rise* at 117
+        nats where the searches summed 1248 for its drop, 124 for its rise.
+
         From the watch (``runner_at`` None) the largest CUSUM on another damper, if
         positive, is kept as the runner-up (:meth:`_runner_up`): where this location finds
         no change, that parameter is located next, at once, from the look-back's
         snapshots before this confirmation (``runner_at``, the look-back's count then)."""
         p, fi = divmod(best, len(self.factors))
         first = runner_at is None
+        if first and self.config.located_by == "search" \
+                and self.lookback.starts(self.lookback.count):
+            params = tuple(range(N_THETA)) if p == CONICITY \
+                else tuple(q for q in range(N_THETA) if q != CONICITY)
+            found = self._best_search(params, self.lookback.count)[0] - 1
+            side = np.sign(self.factors[found % len(self.factors)] - 1.0) if found >= 0 else 0
+            if found >= 0 and found // len(self.factors) != p:
+                # another damper: located as a runner-up is, with none after it
+                best, runner_at, first = found, self.lookback.count, False
+                p, fi = divmod(best, len(self.factors))
+            elif side and side != np.sign(self.factors[fi] - 1.0):
+                # the other side: its hypothesis whose CUSUM leads lends its state
+                on_side = [i for i, f in enumerate(self.factors) if np.sign(f - 1.0) == side]
+                fi = max(on_side, key=lambda i: self.g[p * len(self.factors) + i])
+                best = p * len(self.factors) + fi
         self.vec[_RUNNER] = self._runner_up(p) if self.config.runner_up and first else 0.0
         self.vec[_RUNNER_AT] = self.lookback.count if first else 0.0
         state = self._state_of(1 + best)       # under its watch theta (a runner-up replays)
@@ -732,12 +775,11 @@ class FaultBank:
         """The runner-up of a location of parameter ``p``: of every other damper's drop and
         rise, the one whose location grid, run with steady gains from its likeliest change
         time in the look-back before count ``at`` (:meth:`_glr_best`), sums the largest
-        log-likelihood ratio to the reference. Returns (1 + a hypothesis of that damper on
-        that side, the sum), or (0, h) where no sum is over the watch's threshold ``h``
-        (the runner-up must cross it on its own, as the watch's CUSUM would: a location
-        of lambda x 0.7 that found no change handed a Csay rise at 10.5 nats to its
-        location, which put it at 1.4 x nominal, seed 6573, 3 sensors); the bank's state
-        is as it was.
+        log-likelihood ratio to the reference (:meth:`_best_search`). Returns (1 + a
+        hypothesis of that damper on that side, the sum), or (0, h) where no sum is over
+        the watch's threshold ``h`` (the runner-up must cross it on its own, as the watch's
+        CUSUM would: a location of lambda x 0.7 that found no change handed a Csay rise at
+        10.5 nats to its location, which put it at 1.4 x nominal, seed 6573, 3 sensors).
 
         The watch's CUSUMs name a runner-up poorly: their filters ran at the hypotheses'
         thetas before the change, and their states, estimated under those wrong values,
@@ -748,16 +790,24 @@ class FaultBank:
         Csy drop's search summed 7341 nats at its end). The change-time search starts
         every grid filter from the reference's state before the change, as the location
         itself will (the generalised likelihood ratio over the damper, the side and the
-        change time). Computed once per state (the estimator rescans)."""
-        key = self._memo_key(-1 - p, 0.0, at)
+        change time)."""
+        return self._best_search(tuple(q for q in range(N_THETA) if q not in (p, CONICITY)),
+                                 at)
+
+    def _best_search(self, params: tuple[int, ...], at: int) -> tuple[int, float]:
+        """Of the drop and rise of each parameter in ``params``, the one whose location
+        grid's change-time search over the look-back before count ``at`` (not empty: the
+        callers check) sums the largest log-likelihood ratio to the reference: (1 + a
+        hypothesis of that parameter on that side, the sum), or (0, h) where no sum is
+        over the watch's threshold ``h``. The bank's state is as it was. Computed once
+        per state and ``params`` (the estimator rescans)."""
+        key = (self._memo_key(-1, 0.0, at), params)
         if self._runner_memo is not None and self._runner_memo[0] == key:
             return self._runner_memo[1]
-        starts = self.lookback.starts(at)          # not empty: the caller checked
+        starts = self.lookback.starts(at)
         x0, vec0 = self.x.copy(), self.vec.copy()
         best, nf = (0, self.config.h_nats), len(self.factors)
-        for q in range(N_THETA):
-            if q in (p, CONICITY):
-                continue
+        for q in params:
             for side in (-1.0, 1.0):
                 self.vec[_MODE], self.vec[_LOC_P], self.vec[_LOC_SIDE] = _LOCATE, q, side
                 self._solve()

@@ -1,0 +1,45 @@
+"""A confirmed crossing locates the parameter and side the look-back's search favours.
+
+The watch's CUSUMs name a change poorly in its first quarter second: their hypothesis
+filters ran at wrong values before it. The detection study's records, the service's
+filter at m = 1000, fault at 8.025 s (docs/estimator.md "The fifteenth session"):
+
+- seed 4902, Csy x 0.25, 3 sensors: the watch confirmed lambda x 2.5 at 35.0 nats where
+  the change-time searches over the look-back summed 45.0 for a Csy drop and 35.7 for a
+  conicity rise. Located as named (``located_by = "crossing"``, the bank before
+  2026-11-30's fifteenth session), the conicity's location, which does not replay, summed
+  on undecided and Csy was detected 2.58 s after the step;
+- seed 6611, Csy x 0.25, 5 sensors: the watch confirmed a Csy *rise* at 117 nats where
+  the searches summed 1248 for the drop and 124 for the rise. Located as named, the rise
+  found nothing, and Csy was detected 3.93 s after the step.
+
+With ``"search"`` the Csy drop is located at once, replayed from the look-back.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from firmware_sim.studies.detection import fault_row
+from firmware_sim.studies.filtering import FilterOptions
+from gateway.estimator.faultbank import FaultBankConfig
+
+
+def _row(sensors: int, seed: int, located_by: str) -> dict:
+    return fault_row(0, 0.25, sensors, seed, seconds=18.0, fault_at_s=8.025,
+                     options=FilterOptions(located_by=located_by))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sensors, seed", [(3, 4902), (5, 6611)])
+def test_a_damper_step_the_watch_misnames_is_located_at_once(sensors: int, seed: int) -> None:
+    assert FaultBankConfig().located_by == "search"          # the service's bank
+    new, old = _row(sensors, seed, "search"), _row(sensors, seed, "crossing")
+    for row in (new, old):                                   # Csy found, no healthy alert
+        assert row["before"] == 0 and row["alerts_healthy"] == 0, row
+        assert row["detect_s"] is not None, row
+    assert old["detect_s"] > 2.0, old                        # the record still misleads
+    assert new["detect_s"] <= 1.5 and new["alert_s"] <= 1.5, new
+    assert new["wrong"] == 0, new                            # nothing else detected
+    lo, hi = new["located_like_last"][:2]                    # the refined interval
+    assert lo <= 0.25 <= hi, new
