@@ -96,10 +96,10 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
                          "search over the look-back, or by the watch's CUSUMs (the bank "
                          "before 2026-11-30; default: the bank's own, replay)")
     ap.add_argument("--located-by", choices=LOCATED_BY, default=None,
-                    help="what a crossing on the conicity locates: the parameter and side "
-                         "the look-back's change-time search favours, or the conicity on "
-                         "the crossing's side (the bank before 2026-11-30's fifteenth "
-                         "session; default: the bank's own, search)")
+                    help="what a confirmed crossing locates: the parameter and side the "
+                         "look-back's change-time search favours, or the crossing's own "
+                         "(the bank before 2026-11-30's fifteenth session; default: the "
+                         "bank's own, search)")
 
 
 def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> FilterOptions:

@@ -1097,7 +1097,7 @@ def _config_from_dict(d: dict[str, Any]) -> RBPFConfig:
         bank.setdefault("runner_up", False)
         # ... and before 2026-11-30 (fourteenth session), took the watch's CUSUMs' runner-up
         bank.setdefault("runner_by", "cusum")
-        # ... and before 2026-11-30 (fifteenth session), located a conicity crossing as named
+        # ... and before 2026-11-30 (fifteenth session), located each crossing as named
         bank.setdefault("located_by", "crossing")
         d["faults"] = FaultBankConfig(**bank)
     for k, v in list(d.items()):
