@@ -691,8 +691,8 @@ def test_a_checkpoint_from_before_a_bank_setting_keeps_the_filter_it_was_made_wi
         missing: tuple[str, ...], restored: dict[str, str]) -> None:
     """A checkpoint written before ``runner_by`` (its bank's settings without it, nor
     ``located_by``), or before ``located_by`` alone, restores with the rules it was made
-    with (the watch's CUSUMs name the runner-up; a conicity crossing locates the
-    conicity) and runs on; the service's settings check names each difference (and so
+    with (the watch's CUSUMs name the runner-up; a confirmation locates the parameter and
+    side its crossing named) and runs on; the service's settings check names each difference (and so
     sets it aside)."""
     import dataclasses
 

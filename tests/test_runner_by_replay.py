@@ -9,7 +9,10 @@ the first alert came 5.93 s after the step, from the innovation monitor's re-dra
 (2026-11-29, docs/estimator.md "The thirteenth session"). Since 2026-11-30 the runner-up
 is chosen by each damper's change-time search over the look-back
 (:meth:`gateway.estimator.faultbank.FaultBank._best_runner`): the Csy drop's summed
-7341 nats, and the ALARM came 3.33 s after the step, within the issue's 5 s.
+7341 nats, and the ALARM came 3.33 s after the step, within the issue's 5 s. Since
+2026-11-30's fifteenth session the confirmation itself asks that search what to locate
+(``FaultBankConfig.located_by``, tests/test_located_by_search.py): the Csy drop summed
+53.5 nats there against the conicity's 19.0, and the ALARM comes 1.53 s after the step.
 """
 
 from __future__ import annotations
