@@ -702,10 +702,12 @@ class FaultBank:
         the runner-up was asked; seed 6611 (5 sensors) crossed on a Csy *rise* at 117
         nats where the searches summed 1248 for its drop, 124 for its rise.
 
-        From the watch (``runner_at`` None) the largest CUSUM on another damper, if
-        positive, is kept as the runner-up (:meth:`_runner_up`): where this location finds
-        no change, that parameter is located next, at once, from the look-back's
-        snapshots before this confirmation (``runner_at``, the look-back's count then)."""
+        From the watch (``runner_at`` None) a runner-up is kept pending
+        (:meth:`_runner_up`: with ``runner_by = "replay"`` chosen by :meth:`_best_runner`
+        when needed, with ``"cusum"`` the largest CUSUM on another damper): where this
+        location finds no change, that damper is located next, at once, from the
+        look-back's snapshots before this confirmation (``runner_at``, the look-back's
+        count then)."""
         p, fi = divmod(best, len(self.factors))
         first = runner_at is None
         if first and self.config.located_by == "search" \
