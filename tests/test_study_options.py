@@ -5,6 +5,7 @@ detection study's command line (:mod:`firmware_sim.studies.filtering`,
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -24,13 +25,14 @@ def test_no_options_give_the_service_filter_and_each_override_lands_where_it_bel
     tuned = service_filter(3, 1, FilterOptions(particles=16, replay_cov_scale=3.0,
                                                locate_max_s=4.0, start_ramp_s=0.25,
                                                moves_drop_null=False, sensor_noise="model",
-                                               located_by="crossing"))
+                                               located_by="crossing", fast_warmup_s=2.0))
     assert not isinstance(tuned, NoiseCheckedStart)
     cfg = tuned.config
     assert cfg.faults is not None
     assert (cfg.faults.replay_cov_scale, cfg.faults.locate_max_s) == (3.0, 4.0)
     assert (cfg.faults.located_by, plain.config.faults.located_by) == ("crossing", "search")
     assert (cfg.start_ramp_s, cfg.moves_drop_null, cfg.n_particles) == (0.25, False, 16)
+    assert (cfg.fast_warmup_s, plain.config.fast_warmup_s) == (2.0, 0.5)
     assert cfg.faults.replay_s == plain.config.faults.replay_s      # untouched
 
 
@@ -41,10 +43,11 @@ def test_no_options_give_the_service_filter_and_each_override_lands_where_it_bel
     ({"redraw_from": "hat"}, "expected redraw_from from"),
     ({"located_by": "cusum"}, "expected located_by from"),
     ({"particles": 0}, "expected at least 1 particle, got 0"),
+    ({"fast_warmup_s": -0.1}, "filter option: expected fast_warmup_s in [0, 60] s, got -0.1"),
 ])
 def test_a_bad_option_is_refused_with_what_was_expected(bad: dict[str, object],
                                                         words: str) -> None:
-    with pytest.raises(InputError, match=words.replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(InputError, match=re.escape(words)):
         FilterOptions(**bad)  # type: ignore[arg-type]
 
 
@@ -102,11 +105,13 @@ def test_a_filter_the_noise_test_replaced_takes_its_detections_with_it() -> None
     detection went with the filter that made it, and the replacement's own, the Csy step
     at 8.025 s, is collected. (Before, the run kept the first and missed the second: the
     new filter's count started below the list's length.) With the paper's prior box (the
-    dampers from 0.3 x), which makes that wrong mode on this record; the service's box
-    from 0.1 x (thirteenth session) starts another Monte Carlo path that does not."""
+    dampers from 0.3 x) and the 2 s warm-up (the default until 2026-11-30's sixteenth
+    session), which make that wrong mode on this record; the service's box from 0.1 x
+    (thirteenth session), or the 0.5 s warm-up, start another Monte Carlo path that does
+    not."""
     _, Y = detection.fault_data(0, 0.25, 3, 5334, 18.0, 8.025, noise_scale=2.0)
     gone: list = []
-    filt = service_filter(3, 5334, FilterOptions(prior_lo=(0.3, 0.3, 0.3)))
+    filt = service_filter(3, 5334, FilterOptions(prior_lo=(0.3, 0.3, 0.3), fast_warmup_s=2.0))
     _, found, _ = run(Y[:10_500], filt, replaced=gone)
     assert isinstance(filt, NoiseCheckedStart) and filt.result is not None
     assert any(filt.result.replaced), filt.result

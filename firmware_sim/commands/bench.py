@@ -163,7 +163,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="naive baseline steps (20)")
     p.add_argument("--threads", type=integer(1, 1024), default=None,
                    help="numba threads (all cores)")
-    p.add_argument("--fast-warmup-s", type=real(0.0, 3600.0), default=None,
+    p.add_argument("--fast-warmup-s", type=real(0.0, 60.0), default=None,
                    help="fast mode's exact warm-up in s (the estimator's default)")
     p.add_argument("--frame-loss", type=real(0.0, 1.0), default=1e-3,
                    help="estimator: share of sensor values lost in the lossy fast run "

@@ -13,6 +13,7 @@ import argparse
 
 from firmware_sim.studies.filtering import FilterOptions, kernel_delta_problem
 from firmware_sim.truth import TRACK_INPUTS
+from gateway.cli import real
 from gateway.errors import InputError
 from gateway.estimator.faultbank import LOCATED_BY, REDRAWS, RUNNERS
 from gateway.model.vehicle import PARAM_NAMES
@@ -69,6 +70,10 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
                     default=None, help="the filter's moves_drop_null option (default: the "
                     "filter's own)")
+    ap.add_argument("--fast-warmup-s", type=real(0.0, 60.0), default=None,
+                    help="fast mode's exact warm-up after every filter start and hold, s "
+                         "(default: the filter's own, 0.5; 2 before 2026-11-30's sixteenth "
+                         "session)")
     ap.add_argument("--redraw-from", choices=REDRAWS, default=None,
                     help="how a detection redraws its parameter (default: the bank's own; "
                          "range: log-uniformly over the redraw range, as before "
@@ -109,8 +114,9 @@ def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> Fil
         return FilterOptions(
             particles=args.particles, mode=args.mode, sensor_noise=args.sensor_noise,
             kernel_delta=args.kernel_delta, moves_drop_null=args.moves_drop_null,
-            redraw_from=args.redraw_from, locate_min_s=args.locate_min_s,
-            locate_max_s=args.locate_max_s, replay_s=args.replay_s,
+            fast_warmup_s=args.fast_warmup_s, redraw_from=args.redraw_from,
+            locate_min_s=args.locate_min_s, locate_max_s=args.locate_max_s,
+            replay_s=args.replay_s,
             replay_cov_scale=args.replay_cov_scale, refine_s=args.refine_s,
             runner_up=args.runner_up, runner_by=args.runner_by,
             located_by=args.located_by)

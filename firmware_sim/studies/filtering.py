@@ -24,6 +24,7 @@ from gateway.errors import EstimatorError, InputError
 from gateway.estimator.faultbank import FaultBankConfig
 from gateway.estimator.noisestart import NoiseCheckedStart
 from gateway.estimator.rbpf import RBPF
+from gateway.estimator.rbpf_config import RBPFConfig
 from gateway.records import Estimate, Sample
 from gateway.runtime.pipeline import build_estimator
 
@@ -40,7 +41,8 @@ Found = tuple[float, str, float, float]
 it: decision time (s), parameter name, located value relative to nominal, confirmation
 time (s)."""
 
-_RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m", "prior_lo")
+_RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m", "prior_lo",
+                   "fast_warmup_s")
 _BANK_OVERRIDES = ("locate_min_s", "locate_max_s", "replay_s", "replay_cov_scale",
                    "redraw_from", "refine_s", "runner_up", "runner_by", "located_by")
 
@@ -62,8 +64,10 @@ class FilterOptions:
     the service's ``[estimator]`` settings; ``kernel_delta`` too (with its floor).
     ``moves_drop_null``, ``start_ramp_s``, ``start_ramp_m`` and ``prior_lo`` (the prior
     box's lower edges, e.g. the paper's (0.3, 0.3, 0.3) where the service's filter, from
-    500 particles on, takes (0.1, 0.1, 0.3)) override those options of the filter
-    (:class:`gateway.estimator.rbpf_config.RBPFConfig`); ``locate_min_s``,
+    500 particles on, takes (0.1, 0.1, 0.3)) and ``fast_warmup_s`` (fast mode's exact
+    warm-up, s; 2 s before 2026-11-30's sixteenth session) override those options of the
+    filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`, which checks them, as the
+    bank's below); ``locate_min_s``,
     ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from``,
     ``refine_s``, ``runner_up``, ``runner_by`` and ``located_by`` those of its fault bank
     (:class:`gateway.estimator.faultbank.FaultBankConfig`, which checks them: a bad
@@ -78,6 +82,7 @@ class FilterOptions:
     start_ramp_s: float | None = None
     start_ramp_m: float | None = None
     prior_lo: tuple[float, float, float] | None = None
+    fast_warmup_s: float | None = None
     locate_min_s: float | None = None
     locate_max_s: float | None = None
     replay_s: float | None = None
@@ -96,6 +101,10 @@ class FilterOptions:
                              f"{self.sensor_noise!r}")
         if not self.particles >= 1:
             raise InputError(f"expected at least 1 particle, got {self.particles}")
+        try:
+            RBPFConfig(fs_hz=FS_HZ, **self.given(_RBPF_OVERRIDES))
+        except EstimatorError as exc:
+            raise InputError(f"filter option: {exc}") from None
         if self.kernel_delta is not None:
             problem = kernel_delta_problem(self.kernel_delta)
             if problem is not None:
@@ -180,14 +189,15 @@ def _last(filt: Filter) -> Found:
 
 def filter_columns(filt: Filter) -> dict[str, Any]:
     """The filter's settings as a study's row columns: its sensor-noise test's outcome
-    (the variances used relative to the model's), ``moves_drop_null``, the fault bank's
-    location settings (None: no bank) and the kernel's delta."""
+    (the variances used relative to the model's), ``moves_drop_null``, ``fast_warmup_s``,
+    the fault bank's location settings (None: no bank) and the kernel's delta."""
     res = filt.result if isinstance(filt, NoiseCheckedStart) else None
     bank = filt.config.faults
     return {"sensor_noise": "measured" if isinstance(filt, NoiseCheckedStart) else "model",
             "noise_used_rel": None if res is None else [
                 round(u / m, 3) for u, m in zip(res.used_var, res.model_var, strict=True)],
             "moves_drop_null": filt.config.moves_drop_null,
+            "fast_warmup_s": filt.config.fast_warmup_s,
             **{name: None if bank is None else getattr(bank, name)
                for name in ("redraw_from", "locate_min_s", "locate_s", "locate_max_s",
                             "replay_s", "replay_cov_scale", "refine_s", "runner_up",

@@ -110,11 +110,10 @@ class RBPFConfig:
     speed-band change, :mod:`gateway.estimator.steady`; the product's default);
     ``fast_warmup_s``: in fast mode, the exact recursion runs this long after every
     filter start (the prior's large P converges the states quickly; the steady gains
-    alone would take the slow mode's 8 s time constant); 0.5 s is measured to give the
-    same accuracy at 1.1-1.4 times the whole-run speed (the start's moves then pay DARE
-    solves instead; 3.44 -> 3.90 on 2026-11-28's Intel host, 3.5-3.9 -> 4.7-5.2 on its
-    AMD host), but the campaigns behind the product's figures use 2 s
-    (docs/estimator.md "Start of every filter");
+    alone would take the slow mode's 8 s time constant) and after a hold; 0.5 s since
+    2026-11-30's sixteenth session (2 s before): the same accuracy, calibration and
+    detection on fresh paired campaigns at 1.4 times the whole-run speed
+    (docs/estimator.md "Start of every filter", "The sixteenth session");
     ``moves_drop_null``: a moved particle keeps its ancestor's state less the component
     along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
     on by default since 2026-11-25 (docs/estimator.md "Calibration of the stated sigma": it
@@ -170,7 +169,7 @@ class RBPFConfig:
     speed_tol: float = 2e-3
     threads: int | None = None
     mode: str = "exact"
-    fast_warmup_s: float = 2.0
+    fast_warmup_s: float = 0.5
     output_every: int = 1
     moves_drop_null: bool = True
     start_ramp_s: float = 0.0
@@ -202,6 +201,9 @@ class RBPFConfig:
         if not 0.0 <= self.start_ramp_m <= 1000.0:
             raise EstimatorError(f"expected start_ramp_m in [0, 1000] m, got "
                                  f"{self.start_ramp_m}")
+        if not 0.0 <= self.fast_warmup_s <= 60.0:
+            raise EstimatorError(f"expected fast_warmup_s in [0, 60] s, got "
+                                 f"{self.fast_warmup_s}")
         if self.mode not in MODES:
             raise EstimatorError(f"expected mode 'exact' or 'fast', got {self.mode!r}")
         if self.floor_reference not in ("nominal", "value"):
