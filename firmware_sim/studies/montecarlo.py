@@ -60,16 +60,18 @@ def sigma_over_total(row: dict[str, Any]) -> np.ndarray:
 
 def row_for(seed: int, sensors: int, at_s: float, speed_mps: float, delta: float,
             filter_seeds: int, particles: int,
-            prior_edge: float | None = None) -> dict[str, Any]:
+            prior_edge: float | None = None,
+            fast_warmup_s: float | None = None) -> dict[str, Any]:
     """One record: the service's filter with ``filter_seeds`` seeds and the exact grid
     posterior, read at the record's end ``at_s``; ``prior_edge``: the prior box's lower
-    edge for both dampers, x nominal (None: the service's)."""
+    edge for both dampers, x nominal (None: the service's); ``fast_warmup_s``: fast
+    mode's warm-up, s (None: the filter's)."""
     theta = THETA_SEC42.as_array()
     Y = record(theta, sensors, SEED_OFFSET["paper"] + seed, at_s, speed_mps=speed_mps)
     ends = []
     for k in range(1, filter_seeds + 1):
         filt = service_filter(sensors, 1000 * seed + k, FilterOptions(
-            particles=particles, kernel_delta=delta,
+            particles=particles, kernel_delta=delta, fast_warmup_s=fast_warmup_s,
             prior_lo=None if prior_edge is None else (prior_edge, prior_edge,
                                                       PAPER_PRIOR_LO[2])))
         est, _, _ = run(Y, filt, speed_mps=speed_mps)
