@@ -16,11 +16,12 @@ filter at m = 1000, fault at 8.025 s (docs/estimator.md "The fifteenth session")
 With ``"search"`` the Csy drop is located at once, replayed from the look-back.
 
 Seed 4902 runs with the 2 s warm-up, the default until 2026-11-30's sixteenth session,
-on whose Monte Carlo path it was found. With 0.5 s the searches at its confirmation
-still favour the Csy drop (42.9 nats against 35.4 for the conicity rise) and the Csy
-drop is located first, but that location does not decide and the record alerts 2.57 s
-after the step, as located by the crossing (docs/estimator.md "The sixteenth session",
-not looked into); seed 6611 runs with the default.
+on whose Monte Carlo path it was found. With 0.5 s the confirmation's first scan, ahead
+of the particles, favours the Csy drop (42.9 nats against 35.4 for the conicity rise),
+but the rescan after their move, from the bank's refreshed reference, favours the
+conicity rise (38.1 against 28.0), whose location does not replay, and the record
+alerts 2.57 s after the step, as located by the crossing (docs/estimator.md "The
+sixteenth session", not looked into); seed 6611 runs with the default.
 """
 
 from __future__ import annotations
