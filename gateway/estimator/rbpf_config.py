@@ -111,9 +111,10 @@ class RBPFConfig:
     ``fast_warmup_s``: in fast mode, the exact recursion runs this long after every
     filter start (the prior's large P converges the states quickly; the steady gains
     alone would take the slow mode's 8 s time constant) and after a hold; 0.5 s since
-    2026-11-30's sixteenth session (2 s before): the same accuracy, calibration and
-    detection on fresh paired campaigns at 1.4 times the whole-run speed
-    (docs/estimator.md "Start of every filter", "The sixteenth session");
+    2026-11-30's sixteenth session (2 s before): the same accuracy against the truth,
+    calibration and detection on fresh paired campaigns at 1.4 times the whole-run
+    speed; fast and exact mode then part at 0.5 s (docs/estimator.md "Start of every
+    filter", "The sixteenth session");
     ``moves_drop_null``: a moved particle keeps its ancestor's state less the component
     along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
     on by default since 2026-11-25 (docs/estimator.md "Calibration of the stated sigma": it
