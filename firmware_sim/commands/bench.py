@@ -163,8 +163,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="naive baseline steps (20)")
     p.add_argument("--threads", type=integer(1, 1024), default=None,
                    help="numba threads (all cores)")
-    p.add_argument("--fast-warmup-s", type=real(0.0, 60.0), default=None,
-                   help="fast mode's exact warm-up in s (the estimator's default)")
+    p.add_argument("--fast-warmup-s", type=float, default=None,
+                   help="fast mode's exact warm-up in s (the estimator's default; the "
+                        "estimator's configuration checks it before any run)")
     p.add_argument("--frame-loss", type=real(0.0, 1.0), default=1e-3,
                    help="estimator: share of sensor values lost in the lossy fast run "
                         "(0.001)")
@@ -203,6 +204,10 @@ def run(args: argparse.Namespace) -> int:
                              f"{args.silent_node}")
     if args.plot and "sweep" not in what:
         raise InputError(f"expected --what sweep with --plot, got --what {','.join(what)}")
+    if args.fast_warmup_s is not None:        # its one check, before any run
+        from gateway.estimator.rbpf_config import RBPFConfig
+
+        RBPFConfig(fs_hz=1000.0, fast_warmup_s=args.fast_warmup_s)
     configure(kernel_threads(args.particles, args.threads))
     results = {name: BENCHES[name](args) for name in what}
     if args.json:

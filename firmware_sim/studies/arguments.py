@@ -13,7 +13,6 @@ import argparse
 
 from firmware_sim.studies.filtering import FilterOptions, kernel_delta_problem
 from firmware_sim.truth import TRACK_INPUTS
-from gateway.cli import real
 from gateway.errors import InputError
 from gateway.estimator.faultbank import LOCATED_BY, REDRAWS, RUNNERS
 from gateway.model.vehicle import PARAM_NAMES
@@ -70,10 +69,10 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--moves-drop-null", action=argparse.BooleanOptionalAction,
                     default=None, help="the filter's moves_drop_null option (default: the "
                     "filter's own)")
-    ap.add_argument("--fast-warmup-s", type=real(0.0, 60.0), default=None,
+    ap.add_argument("--fast-warmup-s", type=float, default=None,
                     help="fast mode's exact warm-up after every filter start and hold, s "
                          "(default: the filter's own, 0.5; 2 before 2026-11-30's sixteenth "
-                         "session)")
+                         "session; the filter's configuration checks it)")
     ap.add_argument("--redraw-from", choices=REDRAWS, default=None,
                     help="how a detection redraws its parameter (default: the bank's own; "
                          "range: log-uniformly over the redraw range, as before "
