@@ -1,6 +1,7 @@
-"""``gateway bench``: the estimator bench's fast-mode keys, the threads in effect, and the
-cost-curve sweep (``--what sweep``: JSON records and the PNG). Tiny settings; no timing
-assertions (speed is measured by the benchmark itself, on an idle machine)."""
+"""``gateway bench``: the estimator bench's fast-mode keys (the bare filter's and the
+service's), the threads in effect, and the cost-curve sweep (``--what sweep``: JSON
+records and the PNG). Tiny settings; no timing assertions (speed is measured by the
+benchmark itself, on an idle machine)."""
 
 from __future__ import annotations
 
@@ -14,11 +15,13 @@ import numba
 import numpy as np
 import pytest
 
-from firmware_sim.studies.sweep import bench_data, filter_config
+from firmware_sim.studies.sweep import FS_HZ, bench_data, filter_config, service_filter_config
 from gateway.cli import main
-from gateway.estimator.rbpf import RBPF
+from gateway.config import EstimatorConfig
+from gateway.estimator.rbpf import RBPF, RBPFConfig
 from gateway.estimator.threads import kernel_threads, max_threads, threading_layer
 from gateway.model.vehicle import AR_PAPER_DEFAULT
+from gateway.runtime.pipeline import estimator_config
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SEED = 0
@@ -55,8 +58,12 @@ def positive(value: Any) -> bool:
 
 def resamples(mode: str, particles: int, fast_warmup_s: float) -> int:
     """Resample-moves of a reference run of the bench's filter over the bench's data."""
+    return _resamples(filter_config(mode, particles, SEED, AR_PAPER_DEFAULT, fast_warmup_s))
+
+
+def _resamples(config: RBPFConfig) -> int:
     data = bench_data(0.05, SEED)
-    filt = RBPF(filter_config(mode, particles, SEED, AR_PAPER_DEFAULT, fast_warmup_s))
+    filt = RBPF(config)
     filt.run(data.samples)
     return filt.n_resamples
 
@@ -82,6 +89,32 @@ def test_estimator_keeps_its_keys_and_adds_fast_mode(capsys):
             == resamples("fast", 32, 0.01))
     assert (est["resamples_convergence"] + est["resamples_steady"]
             == resamples("exact", 32, 0.01))
+
+
+def test_estimator_times_the_services_filter_beside_the_bare_one(capsys):
+    m = 32
+    est = bench_json(["--what", "estimator", "--particles", str(m), "--fast-warmup-s", "0.01",
+                      *TINY], capsys)["estimator"]
+    for key in ("service_fast_rtf_whole_run", "service_fast_rtf_steady",
+                "ratio_service_fast_naive_whole_run"):
+        assert positive(est[key]), (key, est[key])
+    assert est["ratio_service_fast_naive_whole_run"] == pytest.approx(
+        est["service_fast_rtf_whole_run"] / est["naive_rtf"])
+    service = service_filter_config(m, SEED, AR_PAPER_DEFAULT, 0.01)
+    want = estimator_config(EstimatorConfig(particles=m), FS_HZ)
+    assert (service.mode, service.delta, service.floor_rel, service.start_ramp_s,
+            service.start_ramp_m, service.prior_lo, service.walk_rel_per_sqrt_s) == (
+        want.mode, want.delta, want.floor_rel, want.start_ramp_s, want.start_ramp_m,
+        want.prior_lo, want.walk_rel_per_sqrt_s)
+    assert est["service_filter"] == {"kernel_delta": want.delta,
+                                     "start_ramp_s": want.start_ramp_s,
+                                     "start_ramp_m": want.start_ramp_m,
+                                     "prior_lo": list(want.prior_lo)}
+    # the counts say which filter ran: the service's, which differs from the bare one
+    bare = resamples("fast", m, 0.01)
+    assert _resamples(service) != bare, "pick another SEED"
+    assert (est["service_fast_resamples_convergence"] + est["service_fast_resamples_steady"]
+            == _resamples(service))
 
 
 def test_threads_option_is_the_threads_measured_with(capsys):

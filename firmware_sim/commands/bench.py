@@ -10,7 +10,10 @@ convergence phase with frequent resampling) and over its steady state, against t
 baseline (:mod:`firmware_sim.studies.naive`) measured on a short slice; then fast mode
 again on the same data with lost frames (``--frame-loss``, each sensor value lost
 independently: a lossy bus, where every lost frame hands fast mode to the exact
-recursion for a while). Real-time factor = simulated seconds / wall seconds.
+recursion for a while); then, on the clean data again, fast mode as the service builds
+it from its default configuration (``service_*`` keys: its kernel discount, floor, prior
+box and start ramp; the others are the paper's bare filter). Real-time factor =
+simulated seconds / wall seconds.
 
 ``sweep``: the cost curve (:mod:`firmware_sim.studies.sweep`): the same three at each m
 of ``--sweep-particles``, a list of records, and with ``--plot`` a PNG (RTF against m,
@@ -65,6 +68,7 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
         filter_config,
         lose_sensor_values,
         naive_rtf,
+        service_filter_config,
         time_filter,
     )
     from gateway.estimator.threads import threading_layer
@@ -78,6 +82,8 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
     naive = naive_rtf(data, m, args.naive_steps, args.ar_paper)
     lossy = time_filter(lose_sensor_values(data, args.frame_loss, args.seed), fast_cfg,
                         args.steady_after_s)
+    service_cfg = service_filter_config(m, args.seed, args.ar_paper, args.fast_warmup_s)
+    service = time_filter(data, service_cfg, args.steady_after_s)
     return {"particles": m, "sensors": SENSORS, "rate_hz": FS_HZ, "seconds": args.seconds,
             "threads": exact.threads, "numba_threads": exact.threads, **_cores(),
             "threading_layer": threading_layer(),
@@ -92,11 +98,20 @@ def bench_estimator(args: argparse.Namespace) -> dict[str, Any]:
             "frame_loss": args.frame_loss,
             "fast_rtf_whole_run_lossy": lossy.rtf_whole_run,
             "fast_rtf_steady_lossy": lossy.rtf_steady,
+            "service_fast_rtf_whole_run": service.rtf_whole_run,
+            "service_fast_rtf_steady": service.rtf_steady,
+            "service_fast_resamples_convergence": service.resamples_convergence,
+            "service_fast_resamples_steady": service.resamples_steady,
+            "service_filter": {"kernel_delta": service_cfg.delta,
+                               "start_ramp_s": service_cfg.start_ramp_s,
+                               "start_ramp_m": service_cfg.start_ramp_m,
+                               "prior_lo": list(service_cfg.prior_lo)},
             "naive_rtf": naive, "naive_steps_measured": args.naive_steps,
             "ratio_whole_run": exact.rtf_whole_run / naive,
             "ratio_steady": exact.rtf_steady / naive,
             "ratio_fast_naive_whole_run": fast.rtf_whole_run / naive,
             "ratio_fast_naive_steady": fast.rtf_steady / naive,
+            "ratio_service_fast_naive_whole_run": service.rtf_whole_run / naive,
             "steady_gflops": FLOP_PER_PARTICLE_STEP * m * FS_HZ * exact.rtf_steady / 1e9,
             "ceiling_rtf": PEAK_GFLOPS_PER_CORE * exact.threads * 1e9
             / (FLOP_PER_PARTICLE_STEP * m * FS_HZ)}

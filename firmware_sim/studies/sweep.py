@@ -166,6 +166,22 @@ def filter_config(mode: str, particles: int, seed: int, ar_paper: float,
     return config if fast_warmup_s is None else replace(config, fast_warmup_s=fast_warmup_s)
 
 
+def service_filter_config(particles: int, seed: int, ar_paper: float,
+                          fast_warmup_s: float | None = None) -> RBPFConfig:
+    """The filter the service builds from its default ``[estimator]`` table
+    (:func:`gateway.runtime.pipeline.estimator_config`: fast mode, the kernel discount,
+    floor, prior box and start ramp it chooses), at ``particles``, ``seed`` and the
+    benchmark's ``ar_paper``, with the model's sensor noise (the service measures it at
+    the start; the benchmark's data have the model's). :func:`filter_config` is the
+    paper's bare filter."""
+    from gateway.config import EstimatorConfig
+    from gateway.runtime.pipeline import estimator_config
+
+    config = estimator_config(EstimatorConfig(particles=particles, seed=seed,
+                                              track_roughness=ar_paper), FS_HZ)
+    return config if fast_warmup_s is None else replace(config, fast_warmup_s=fast_warmup_s)
+
+
 def sweep_point(data: BenchData, particles: int, *, seed: int, steady_after_s: float,
                 naive_steps_n: int, ar_paper: float, exact: bool = True,
                 fast_warmup_s: float | None = None) -> SweepRecord:
