@@ -323,7 +323,9 @@ class FaultBank:
         self.lookback = Lookback(0, 1, self.n_params)  # sized by set_model
         self._memo: tuple[bytes, tuple[tuple[np.ndarray, ...], Lookback],
                           Detection | None] | None = None   # the last location (_locate)
-        self._runner_memo: tuple[object, tuple[int, float]] | None = None  # _best_search
+        # _best_search: its key, its answer, and each searched grid's change time (a count)
+        self._runner_memo: tuple[object, tuple[int, float], dict[tuple[int, float], int]] \
+            | None = None
 
     # ----------------------------------------------------------------- state
     @property
@@ -710,11 +712,13 @@ class FaultBank:
         count then)."""
         p, fi = divmod(best, len(self.factors))
         first = runner_at is None
+        searched: dict[tuple[int, float], int] = {}   # change times found at this count
         if first and self.config.located_by == "search" \
                 and self.lookback.starts(self.lookback.count):
             params = tuple(range(N_THETA)) if p == CONICITY \
                 else tuple(q for q in range(N_THETA) if q != CONICITY)
-            found = self._best_search(params, self.lookback.count)[0] - 1
+            (found, _), searched = self._searched(params, self.lookback.count)
+            found -= 1
             side = np.sign(self.factors[found % len(self.factors)] - 1.0) if found >= 0 else 0
             if found >= 0 and found // len(self.factors) != p:
                 # another damper: located as a runner-up is, with none after it
@@ -735,7 +739,7 @@ class FaultBank:
         self.vec[_CONF_T] = t_s
         v0 = self._solve()                     # the grid's gains and null vectors
         if starts:
-            n0, xs, ref0 = self._glr_start(starts)
+            n0, xs, ref0 = self._glr_start(starts, searched.get((int(p), float(self.vec[_LOC_SIDE]))))
             state = self._without_null(xs[None], ref0[None])[0]
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
@@ -803,24 +807,33 @@ class FaultBank:
         hypothesis of that parameter on that side, the sum), or (0, h) where no sum is
         over the watch's threshold ``h``. The bank's state is as it was. Computed once
         per state and ``params`` (the estimator rescans)."""
+        return self._searched(params, at)[0]
+
+    def _searched(self, params: tuple[int, ...], at: int
+                  ) -> tuple[tuple[int, float], dict[tuple[int, float], int]]:
+        """:meth:`_best_search`'s answer, and the change time (a count) its search found
+        for each parameter and side searched: a location of one of them from the same
+        look-back at the same count starts there without searching again
+        (:meth:`_glr_start`)."""
         key = (self._memo_key(-1, 0.0, at), params)
         if self._runner_memo is not None and self._runner_memo[0] == key:
-            return self._runner_memo[1]
+            return self._runner_memo[1], self._runner_memo[2]
         starts = self.lookback.starts(at)
         x0, vec0 = self.x.copy(), self.vec.copy()
         best, nf = (0, self.config.h_nats), len(self.factors)
+        counts: dict[tuple[int, float], int] = {}
         for q in params:
             for side in (-1.0, 1.0):
                 self.vec[_MODE], self.vec[_LOC_P], self.vec[_LOC_SIDE] = _LOCATE, q, side
                 self._solve()
-                total = self._glr_best(starts)[1]
+                counts[(q, side)], total = self._glr_best(starts)
                 if total > best[1]:
                     fi = int(np.argmin(self.factors) if side < 0 else np.argmax(self.factors))
                     best = (1 + q * nf + fi, total)
         self.x, self.vec = x0, vec0
         self._solve()
-        self._runner_memo = (key, best)
-        return best
+        self._runner_memo = (key, best, counts)
+        return best, counts
 
     def _ratios(self, LL: np.ndarray, full: np.ndarray) -> np.ndarray:
         """Each hypothesis's log-likelihood ratio to the reference (k, J) from the
@@ -843,8 +856,8 @@ class FaultBank:
             np.logical_or(np.asarray(lead) > self.config.h_nats / 2.0,
                           np.logical_not(np.asarray(lead) > 0.0)))
 
-    def _glr_start(self, starts: list[tuple[int, np.ndarray, np.ndarray]]
-                   ) -> tuple[int, np.ndarray, np.ndarray]:
+    def _glr_start(self, starts: list[tuple[int, np.ndarray, np.ndarray]],
+                   searched: int | None = None) -> tuple[int, np.ndarray, np.ndarray]:
         """The generalised likelihood ratio's change time (Willsky and Jones 1976) and the
         reference's state there: (count, reference state (16,), its theta). ``starts``
         are the look-back's snapshots (count, reference state, its theta; oldest
@@ -862,14 +875,17 @@ class FaultBank:
         sensors, 3566 nats from the change's sample, 835 four samples later, -124 at
         24), so on snapshots alone a change between two of them was located at 1.3-1.8
         x its value, and one on a snapshot at 1.2 x. Called in the location phase's
-        mode, with the grid's steady gains solved, before its filters start."""
+        mode, with the grid's steady gains solved, before its filters start.
+        ``searched``: the change time the confirmation's search (:meth:`_searched`) found
+        for this grid from the same ``starts`` at the same count, which this search would
+        find again (None: search)."""
         assert self._gains is not None and self._model is not None
         n_first = starts[0][0]
         Y, full = self.lookback.samples(n_first)
         if len(Y) == 0:                       # nothing to replay: the newest snapshot
             n, xs, ref0 = starts[-1]
             return n, self._without_null(xs[None], ref0[None])[0], ref0
-        best = self._glr_best(starts)[0]
+        best = self._glr_best(starts)[0] if searched is None else searched
         x, ref0 = self._ref_at(starts, best, Y, full)
         return best, x[0], ref0
 

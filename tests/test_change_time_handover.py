@@ -1,0 +1,72 @@
+"""A confirmation's change-time search hands its change time to the location it picks.
+
+From the watch (``located_by = "search"``) a confirmation first runs the change-time
+search of each damper's drop and rise over the look-back (:meth:`FaultBank._searched`)
+and then locates the winner, replaying from its change time. Before 2026-11-30's
+seventeenth session the location searched that change time again (the same grid, the
+same snapshots, the same samples): one repeated search per confirmation. This checks, on
+the detection study's record of seed 6611 (Csy x 0.25, 5 sensors, the service's filter
+at m = 1000, step at 8.025 s; located at once by the search), that the location no
+longer searches, and that every location and the row come out exactly as with the
+search repeated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+import pytest
+
+from firmware_sim.studies.detection import fault_row
+from gateway.estimator.faultbank import FaultBank
+
+
+def _run(monkeypatch: pytest.MonkeyPatch, repeat: bool) -> tuple[dict, list, int, int]:
+    """The record's row, every location's outcome, the change-time searches run, and the
+    locations that replayed from a search's change time (``repeat``: searched again)."""
+    located: list[Any] = []
+    calls = {"search": 0, "handed": 0}
+    glr_best, glr_start, locate_now = (FaultBank._glr_best, FaultBank._glr_start,
+                                       FaultBank._locate_now)
+
+    def counted_best(self: FaultBank, starts: list) -> tuple[int, float]:
+        calls["search"] += 1
+        return glr_best(self, starts)
+
+    def start(self: FaultBank, starts: list, searched: int | None = None) -> Any:
+        calls["handed"] += searched is not None
+        return glr_start(self, starts, None if repeat else searched)
+
+    def recorded(self: FaultBank, *args: Any) -> Any:
+        det = locate_now(self, *args)
+        located.append(det)
+        return det
+
+    monkeypatch.setattr(FaultBank, "_glr_best", counted_best)
+    monkeypatch.setattr(FaultBank, "_glr_start", start)
+    monkeypatch.setattr(FaultBank, "_locate_now", recorded)
+    row = fault_row(0, 0.25, 5, 6611, seconds=10.0, fault_at_s=8.025)
+    monkeypatch.undo()
+    return row, located, calls["search"], calls["handed"]
+
+
+@pytest.mark.slow
+def test_the_location_starts_at_the_searchs_change_time_without_searching_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    row, located, searches, handed = _run(monkeypatch, repeat=False)
+    old_row, old_located, old_searches, old_handed = _run(monkeypatch, repeat=True)
+    assert row["detect_s"] is not None and row["detect_s"] <= 1.5, row   # found at once
+    assert row["wrong"] == 0 and row["alerts_healthy"] == 0, row
+    assert handed >= 1 and handed == old_handed                 # a search picked it
+    assert searches == old_searches - handed                    # one search fewer each
+    assert len(located) == len(old_located) >= 1                # the same locations, exactly
+    for det, old in zip(located, old_located, strict=True):
+        assert (det is None) == (old is None)
+        for f in fields(det) if det is not None else ():
+            a, b = getattr(det, f.name), getattr(old, f.name)
+            assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, f.name
+    for key in set(row) | set(old_row):
+        if key != "wall_s":
+            assert row.get(key) == old_row.get(key), key
