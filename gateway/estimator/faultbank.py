@@ -739,7 +739,8 @@ class FaultBank:
         self.vec[_CONF_T] = t_s
         v0 = self._solve()                     # the grid's gains and null vectors
         if starts:
-            n0, xs, ref0 = self._glr_start(starts, searched.get((int(p), float(self.vec[_LOC_SIDE]))))
+            handed = searched.get((int(p), float(self.vec[_LOC_SIDE])))
+            n0, xs, ref0 = self._glr_start(starts, handed)
             state = self._without_null(xs[None], ref0[None])[0]
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
