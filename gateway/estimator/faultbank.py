@@ -293,6 +293,10 @@ sample within one such step of the best."""
 
 _WATCH, _LOCATE = 0.0, 1.0
 
+Searched = dict[tuple[int, float], int]
+"""The change time (a count) a change-time search found for each grid it ran: keyed by
+(parameter, side: -1.0 a drop, 1.0 a rise) (:meth:`FaultBank._searched`)."""
+
 
 class FaultBank:
     """The hypothesis filters, their CUSUMs and their life cycle (module docstring)."""
@@ -324,8 +328,7 @@ class FaultBank:
         self._memo: tuple[bytes, tuple[tuple[np.ndarray, ...], Lookback],
                           Detection | None] | None = None   # the last location (_locate)
         # _best_search: its key, its answer, and each searched grid's change time (a count)
-        self._runner_memo: tuple[object, tuple[int, float], dict[tuple[int, float], int]] \
-            | None = None
+        self._runner_memo: tuple[object, tuple[int, float], Searched] | None = None
 
     # ----------------------------------------------------------------- state
     @property
@@ -641,8 +644,8 @@ class FaultBank:
         x = self.x.reshape(self._nch, NZ, LANES)[filt // LANES, :, filt % LANES]
         return self._without_null(x[None], self.hypotheses()[filt:filt + 1])[0]
 
-    def _locate(self, best: int, t_s: float, runner_at: int | None = None
-                ) -> Detection | None:
+    def _locate(self, best: int, t_s: float, runner_at: int | None = None,
+                searched: Searched | None = None) -> Detection | None:
         """:meth:`_locate_now`, or where the bank is in the very state it was in at the
         last call with the same arguments, that call's outcome again.
 
@@ -659,7 +662,7 @@ class FaultBank:
             _, after, det = self._memo
             self.rewind(after)
             return det
-        det = self._locate_now(best, t_s, runner_at)
+        det = self._locate_now(best, t_s, runner_at, searched)
         self._memo = (key, self.snapshot(), det)
         return det
 
@@ -679,8 +682,8 @@ class FaultBank:
         h.update(repr(self._model[4]).encode())
         return h.digest()
 
-    def _locate_now(self, best: int, t_s: float, runner_at: int | None = None
-                    ) -> Detection | None:
+    def _locate_now(self, best: int, t_s: float, runner_at: int | None = None,
+                    searched: Searched | None = None) -> Detection | None:
         """A confirmed crossing by hypothesis ``best`` at data time ``t_s``: the
         hypotheses become a grid over the changed parameter on the crossing's side of
         the reference (:meth:`locate_grid`), and their log-likelihood ratios are summed
@@ -709,11 +712,22 @@ class FaultBank:
         when needed, with ``"cusum"`` the largest CUSUM on another damper): where this
         location finds no change, that damper is located next, at once, from the
         look-back's snapshots before this confirmation (``runner_at``, the look-back's
-        count then)."""
+        count then). So does a damper the search picks over the crossing's parameter:
+        where its location finds no change, the runner-up among the other dampers is
+        searched again from the same look-back, now with the samples since, and located
+        (seed 6908, Csy x 0.25, 5 sensors: the search summed 116 nats for a Csay drop a
+        quarter second after the step, whose location found nothing; watching again
+        from scratch put the Csy detection 2.3 s after the step, at 0.4 x its value,
+        from a look-back that had lost the change). Every confirmation thus has at
+        most two locations: the first, and one runner-up.
+
+        ``searched``: the change times a runner-up's search found at this count
+        (:meth:`_searched`); the location of one of those grids starts there without
+        searching again, as a first location does after its own search."""
         p, fi = divmod(best, len(self.factors))
-        first = runner_at is None
-        searched: dict[tuple[int, float], int] = {}   # change times found at this count
-        if first and self.config.located_by == "search" \
+        pending = runner_at is None
+        searched = searched or {}              # change times found at this count
+        if pending and self.config.located_by == "search" \
                 and self.lookback.starts(self.lookback.count):
             params = tuple(range(N_THETA)) if p == CONICITY \
                 else tuple(q for q in range(N_THETA) if q != CONICITY)
@@ -721,16 +735,17 @@ class FaultBank:
             found -= 1
             side = np.sign(self.factors[found % len(self.factors)] - 1.0) if found >= 0 else 0
             if found >= 0 and found // len(self.factors) != p:
-                # another damper: located as a runner-up is, with none after it
-                best, runner_at, first = found, self.lookback.count, False
+                # another damper: located from the look-back as a runner-up is (a
+                # runner-up stays pending for it)
+                best, runner_at = found, self.lookback.count
                 p, fi = divmod(best, len(self.factors))
             elif side and side != np.sign(self.factors[fi] - 1.0):
                 # the other side: its hypothesis whose CUSUM leads lends its state
                 on_side = [i for i, f in enumerate(self.factors) if np.sign(f - 1.0) == side]
                 fi = max(on_side, key=lambda i: self.g[p * len(self.factors) + i])
                 best = p * len(self.factors) + fi
-        self.vec[_RUNNER] = self._runner_up(p) if self.config.runner_up and first else 0.0
-        self.vec[_RUNNER_AT] = self.lookback.count if first else 0.0
+        self.vec[_RUNNER] = self._runner_up(p) if self.config.runner_up and pending else 0.0
+        self.vec[_RUNNER_AT] = self.lookback.count if pending else 0.0
         state = self._state_of(1 + best)       # under its watch theta (a runner-up replays)
         starts = self.lookback.starts(runner_at) if p != CONICITY else []
         self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
@@ -778,13 +793,14 @@ class FaultBank:
         j = max(others, key=lambda i: self.g[i])
         return float(j + 1) if self.g[j] > 0.0 else 0.0
 
-    def _best_runner(self, p: int, at: int) -> tuple[int, float]:
+    def _best_runner(self, p: int, at: int) -> tuple[tuple[int, float], Searched]:
         """The runner-up of a location of parameter ``p``: of every other damper's drop and
         rise, the one whose location grid, run with steady gains from its likeliest change
         time in the look-back before count ``at`` (:meth:`_glr_best`), sums the largest
         log-likelihood ratio to the reference (:meth:`_best_search`). Returns (1 + a
         hypothesis of that damper on that side, the sum), or (0, h) where no sum is over
-        the watch's threshold ``h`` (the runner-up must cross it on its own, as the watch's
+        the watch's threshold ``h``, and each searched grid's change time
+        (:meth:`_searched`) (the runner-up must cross it on its own, as the watch's
         CUSUM would: a location of lambda x 0.7 that found no change handed a Csay rise at
         10.5 nats to its location, which put it at 1.4 x nominal, seed 6573, 3 sensors).
 
@@ -798,7 +814,7 @@ class FaultBank:
         every grid filter from the reference's state before the change, as the location
         itself will (the generalised likelihood ratio over the damper, the side and the
         change time)."""
-        return self._best_search(tuple(q for q in range(N_THETA) if q not in (p, CONICITY)),
+        return self._searched(tuple(q for q in range(N_THETA) if q not in (p, CONICITY)),
                                  at)
 
     def _best_search(self, params: tuple[int, ...], at: int) -> tuple[int, float]:
@@ -811,7 +827,7 @@ class FaultBank:
         return self._searched(params, at)[0]
 
     def _searched(self, params: tuple[int, ...], at: int
-                  ) -> tuple[tuple[int, float], dict[tuple[int, float], int]]:
+                  ) -> tuple[tuple[int, float], Searched]:
         """:meth:`_best_search`'s answer, and the change time (a count) its search found
         for each parameter and side searched: a location of one of them from the same
         look-back at the same count starts there without searching again
@@ -822,7 +838,7 @@ class FaultBank:
         starts = self.lookback.starts(at)
         x0, vec0 = self.x.copy(), self.vec.copy()
         best, nf = (0, self.config.h_nats), len(self.factors)
-        counts: dict[tuple[int, float], int] = {}
+        counts: Searched = {}
         for q in params:
             for side in (-1.0, 1.0):
                 self.vec[_MODE], self.vec[_LOC_P], self.vec[_LOC_SIDE] = _LOCATE, q, side
@@ -877,9 +893,9 @@ class FaultBank:
         24), so on snapshots alone a change between two of them was located at 1.3-1.8
         x its value, and one on a snapshot at 1.2 x. Called in the location phase's
         mode, with the grid's steady gains solved, before its filters start.
-        ``searched``: the change time the confirmation's search (:meth:`_searched`) found
-        for this grid from the same ``starts`` at the same count, which this search would
-        find again (None: search)."""
+        ``searched``: the change time a search at this count (:meth:`_searched`: the
+        confirmation's, or a runner-up's) found for this grid from the same ``starts``,
+        which this search would find again (None: search)."""
         assert self._gains is not None and self._model is not None
         n_first = starts[0][0]
         Y, full = self.lookback.samples(n_first)
@@ -1040,12 +1056,14 @@ class FaultBank:
         p = int(self.vec[_LOC_P])
         if not self.g[best] > self.config.h_nats / 2.0:
             runner, at = int(self.vec[_RUNNER]) - 1, int(self.vec[_RUNNER_AT])
+            searched: Searched = {}
             if runner >= 0 and self.config.runner_by == "replay" and self.lookback.starts(at):
-                runner = self._best_runner(p, at)[0] - 1
+                (runner, _), searched = self._best_runner(p, at)
+                runner -= 1
             self.vec[_RUNNER] = 0.0
             if runner >= 0 and self.lookback.starts(at):
                 # the change was not where the crossing pointed: the runner-up next
-                return self._locate(runner, t_s, runner_at=at)
+                return self._locate(runner, t_s, runner_at=at, searched=searched)
             # no change: every filter restarts from the reference's state (consistent
             # with theta_ref), as at a start; the grid's states fit only their own values
             self._watch_again(self._state_of(0))
