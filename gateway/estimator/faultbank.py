@@ -52,7 +52,9 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   restarts from the reference's state and the bank watches again. (Since 2026-11-30's
   fifteenth session, ``located_by``, the confirmation itself asks that search which
   parameter and side to locate: among the dampers for a crossing on a damper, among
-  every parameter for one on the conicity.) In
+  every parameter for one on the conicity; since the seventeenth, a damper it picks
+  over the crossing's parameter keeps a runner-up too, and each location starts at the
+  change time its search found, without searching again.) In
   between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
   later look costs no more false detections). Optionally (``locate_min_s`` below
   ``locate_s``; off by default) the sum stops early, after at least ``locate_min_s``, at
