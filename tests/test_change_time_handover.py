@@ -1,7 +1,7 @@
 """A change-time search hands its change times to the location it picks.
 
 From the watch (``located_by = "search"``) a confirmation first runs the change-time
-search of each damper's drop and rise over the look-back (:meth:`FaultBank._searched`)
+search of each damper's drop and rise over the look-back (:meth:`FaultBank._best_search`)
 and then locates the winner, replaying from its change time; a runner-up is searched
 for and located the same way. Before 2026-11-30's seventeenth session the location
 searched that change time again (the same grid, the same snapshots, the same samples):

@@ -297,7 +297,7 @@ _WATCH, _LOCATE = 0.0, 1.0
 
 Searched = dict[tuple[int, float], int]
 """The change time (a count) a change-time search found for each grid it ran: keyed by
-(parameter, side: -1.0 a drop, 1.0 a rise) (:meth:`FaultBank._searched`)."""
+(parameter, side: -1.0 a drop, 1.0 a rise) (:meth:`FaultBank._best_search`)."""
 
 
 class FaultBank:
@@ -724,7 +724,7 @@ class FaultBank:
         most two locations: the first, and one runner-up.
 
         ``searched``: the change times a runner-up's search found at this count
-        (:meth:`_searched`); the location of one of those grids starts there without
+        (:meth:`_best_search`); the location of one of those grids starts there without
         searching again, as a first location does after its own search."""
         p, fi = divmod(best, len(self.factors))
         pending = runner_at is None
@@ -733,7 +733,7 @@ class FaultBank:
                 and self.lookback.starts(self.lookback.count):
             params = tuple(range(N_THETA)) if p == CONICITY \
                 else tuple(q for q in range(N_THETA) if q != CONICITY)
-            (found, _), searched = self._searched(params, self.lookback.count)
+            (found, _), searched = self._best_search(params, self.lookback.count)
             found -= 1
             side = np.sign(self.factors[found % len(self.factors)] - 1.0) if found >= 0 else 0
             if found >= 0 and found // len(self.factors) != p:
@@ -801,10 +801,10 @@ class FaultBank:
         time in the look-back before count ``at`` (:meth:`_glr_best`), sums the largest
         log-likelihood ratio to the reference (:meth:`_best_search`). Returns (1 + a
         hypothesis of that damper on that side, the sum), or (0, h) where no sum is over
-        the watch's threshold ``h``, and each searched grid's change time
-        (:meth:`_searched`) (the runner-up must cross it on its own, as the watch's
+        the watch's threshold ``h`` (the runner-up must cross it on its own, as the watch's
         CUSUM would: a location of lambda x 0.7 that found no change handed a Csay rise at
-        10.5 nats to its location, which put it at 1.4 x nominal, seed 6573, 3 sensors).
+        10.5 nats to its location, which put it at 1.4 x nominal, seed 6573, 3 sensors);
+        with each searched grid's change time, as :meth:`_best_search` gives them.
 
         The watch's CUSUMs name a runner-up poorly: their filters ran at the hypotheses'
         thetas before the change, and their states, estimated under those wrong values,
@@ -816,24 +816,20 @@ class FaultBank:
         every grid filter from the reference's state before the change, as the location
         itself will (the generalised likelihood ratio over the damper, the side and the
         change time)."""
-        return self._searched(tuple(q for q in range(N_THETA) if q not in (p, CONICITY)),
+        return self._best_search(tuple(q for q in range(N_THETA) if q not in (p, CONICITY)),
                                  at)
 
-    def _best_search(self, params: tuple[int, ...], at: int) -> tuple[int, float]:
+    def _best_search(self, params: tuple[int, ...], at: int
+                     ) -> tuple[tuple[int, float], Searched]:
         """Of the drop and rise of each parameter in ``params``, the one whose location
         grid's change-time search over the look-back before count ``at`` (not empty: the
         callers check) sums the largest log-likelihood ratio to the reference: (1 + a
         hypothesis of that parameter on that side, the sum), or (0, h) where no sum is
-        over the watch's threshold ``h``. The bank's state is as it was. Computed once
-        per state and ``params`` (the estimator rescans)."""
-        return self._searched(params, at)[0]
-
-    def _searched(self, params: tuple[int, ...], at: int
-                  ) -> tuple[tuple[int, float], Searched]:
-        """:meth:`_best_search`'s answer, and the change time (a count) its search found
-        for each parameter and side searched: a location of one of them from the same
-        look-back at the same count starts there without searching again
-        (:meth:`_glr_start`)."""
+        over the watch's threshold ``h``; and the change time (a count) the search found
+        for each parameter and side, where a location of one of them from the same
+        look-back at the same count starts without searching again (:meth:`_glr_start`).
+        The bank's state is as it was. Computed once per state and ``params`` (the
+        estimator rescans)."""
         key = (self._memo_key(-1, 0.0, at), params)
         if self._runner_memo is not None and self._runner_memo[0] == key:
             return self._runner_memo[1], self._runner_memo[2]
@@ -895,7 +891,7 @@ class FaultBank:
         24), so on snapshots alone a change between two of them was located at 1.3-1.8
         x its value, and one on a snapshot at 1.2 x. Called in the location phase's
         mode, with the grid's steady gains solved, before its filters start.
-        ``searched``: the change time a search at this count (:meth:`_searched`: the
+        ``searched``: the change time a search at this count (:meth:`_best_search`: the
         confirmation's, or a runner-up's) found for this grid from the same ``starts``,
         which this search would find again (None: search)."""
         assert self._gains is not None and self._model is not None
