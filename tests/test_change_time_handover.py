@@ -37,9 +37,9 @@ def _run(monkeypatch: pytest.MonkeyPatch, seed: int, repeat: bool
         calls["search"] += 1
         return glr_best(self, starts)
 
-    def start(self: FaultBank, starts: list, searched: int | None = None) -> Any:
-        calls["handed"] += searched is not None
-        return glr_start(self, starts, None if repeat else searched)
+    def start(self: FaultBank, starts: list, change_at: int | None = None) -> Any:
+        calls["handed"] += change_at is not None
+        return glr_start(self, starts, None if repeat else change_at)
 
     def recorded(self: FaultBank, *args: Any) -> Any:
         det = locate_now(self, *args)

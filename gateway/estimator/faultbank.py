@@ -756,8 +756,8 @@ class FaultBank:
         self.vec[_CONF_T] = t_s
         v0 = self._solve()                     # the grid's gains and null vectors
         if starts:
-            handed = searched.get((int(p), float(self.vec[_LOC_SIDE])))
-            n0, xs, ref0 = self._glr_start(starts, handed)
+            n0, xs, ref0 = self._glr_start(
+                starts, searched.get((int(p), float(self.vec[_LOC_SIDE]))))
             state = self._without_null(xs[None], ref0[None])[0]
         self.x[:] = to_lanes(np.repeat(state[None], self.m, 0))
         self.g[:] = 0.0
@@ -872,7 +872,7 @@ class FaultBank:
                           np.logical_not(np.asarray(lead) > 0.0)))
 
     def _glr_start(self, starts: list[tuple[int, np.ndarray, np.ndarray]],
-                   searched: int | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+                   change_at: int | None = None) -> tuple[int, np.ndarray, np.ndarray]:
         """The generalised likelihood ratio's change time (Willsky and Jones 1976) and the
         reference's state there: (count, reference state (16,), its theta). ``starts``
         are the look-back's snapshots (count, reference state, its theta; oldest
@@ -891,7 +891,7 @@ class FaultBank:
         24), so on snapshots alone a change between two of them was located at 1.3-1.8
         x its value, and one on a snapshot at 1.2 x. Called in the location phase's
         mode, with the grid's steady gains solved, before its filters start.
-        ``searched``: the change time a search at this count (:meth:`_best_search`: the
+        ``change_at``: the change time a search at this count (:meth:`_best_search`: the
         confirmation's, or a runner-up's) found for this grid from the same ``starts``,
         which this search would find again (None: search)."""
         assert self._gains is not None and self._model is not None
@@ -900,7 +900,7 @@ class FaultBank:
         if len(Y) == 0:                       # nothing to replay: the newest snapshot
             n, xs, ref0 = starts[-1]
             return n, self._without_null(xs[None], ref0[None])[0], ref0
-        best = self._glr_best(starts)[0] if searched is None else searched
+        best = self._glr_best(starts)[0] if change_at is None else change_at
         x, ref0 = self._ref_at(starts, best, Y, full)
         return best, x[0], ref0
 
