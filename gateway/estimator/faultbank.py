@@ -49,7 +49,10 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   before the confirmation (:meth:`FaultBank._runner_up`): since 2026-11-30
   (``runner_by``) the damper and side whose change-time search over that look-back sums
   the most (:meth:`FaultBank._best_runner`), if that crosses ``h``; otherwise every filter
-  restarts from the reference's state and the bank watches again. (Since 2026-11-30's
+  restarts from the reference's state and the bank watches again; a conicity location
+  that found no change, and no damper's search over ``h``, is followed by the
+  conicity's location on its other side (since 2026-11-30's eighteenth session). (Since
+  2026-11-30's
   fifteenth session, ``located_by``, the confirmation itself asks that search which
   parameter and side to locate: among the dampers for a crossing on a damper, among
   every parameter for one on the conicity; since the seventeenth, a damper it picks
@@ -184,8 +187,10 @@ class FaultBankConfig:
     it counts towards ``hold_s``, so the bank is back to watching ``max(hold_s,
     refine_s)`` after a detection; docs/estimator.md "The location refines its interval
     after a detection"); ``runner_up``: where a location finds no change, locate the
-    runner-up damper next, from the same look-back (:meth:`FaultBank._runner_up`;
-    False: watch again, as before 2026-11-29's eighth session); ``runner_by``: how the
+    runner-up damper next, from the same look-back (:meth:`FaultBank._runner_up`), or,
+    after a conicity location with no damper to follow, the conicity on its other side
+    (:meth:`FaultBank._located`; False: watch again, as before 2026-11-29's eighth
+    session); ``runner_by``: how the
     runner-up is chosen (``"replay"``, since 2026-11-30: the damper and side whose
     location grid's change-time search over the look-back sums the most, if that
     crosses ``h_nats`` (:meth:`FaultBank._best_runner`); ``"cusum"``: the watch's best
@@ -721,7 +726,9 @@ class FaultBank:
         quarter second after the step, whose location found nothing; watching again
         from scratch put the Csy detection 2.3 s after the step, at 0.4 x its value,
         from a look-back that had lost the change). Every confirmation thus has at
-        most two locations: the first, and one runner-up.
+        most two locations: the first, and one runner-up (for a conicity location, the
+        conicity's other side where no damper's search crosses ``h``,
+        :meth:`_located`).
 
         ``searched``: the change times a runner-up's search found at this count
         (:meth:`_best_search`); the location of one of those grids starts there without
@@ -748,7 +755,10 @@ class FaultBank:
                 best = p * len(self.factors) + fi
         self.vec[_RUNNER] = self._runner_up(p) if self.config.runner_up and pending else 0.0
         self.vec[_RUNNER_AT] = self.lookback.count if pending else 0.0
-        state = self._state_of(1 + best)       # under its watch theta (a runner-up replays)
+        # under its watch theta (a runner-up replays; the conicity's other side, located
+        # after its first side, starts from the reference's state: the grid's filters
+        # fit only their own values)
+        state = self._state_of(0 if self.locating else 1 + best)
         starts = self.lookback.starts(runner_at) if p != CONICITY else []
         self.vec[_MODE], self.vec[_LOC_P] = _LOCATE, p
         self.vec[_LOC_SIDE] = -1.0 if self.factors[fi] < 1.0 else 1.0
@@ -1048,7 +1058,18 @@ class FaultBank:
 
     def _located(self, t_s: float) -> Detection | None:
         """The location phase's answer: the best grid value, if it beats the reference
-        by ``h_nats / 2`` over ``locate_s`` (else no change: watch again)."""
+        by ``h_nats / 2`` over ``locate_s``; else no change on that side, and the pending
+        runner-up is located next (:meth:`_locate_now`), or the bank watches again.
+
+        A conicity location's runner-up, where no damper's change-time search crosses
+        ``h``, is the conicity on its other side, from the reference's state here (the
+        conicity does not replay, :data:`CONICITY`). A conicity drop's first transient
+        can favour a rise: on the seventeenth session's fresh seeds both the crossing and
+        the search named lambda x 0.7 a rise (seed 6952, 5 sensors: 500 and 374 nats), the
+        rise's location found nothing, and the drop was found only after watching again,
+        +4.1-4.4 s median after the step, 2 of 8 never with 3 sensors (seeds 6950,
+        6951); with the other side located next, seeds 6950-6952 (3 sensors) were found
+        at +2.25 s, each likelihood interval holding the truth."""
         grid = self.locate_grid()
         best = int(np.argmax(self.g))
         p = int(self.vec[_LOC_P])
@@ -1058,10 +1079,17 @@ class FaultBank:
             if runner >= 0 and self.config.runner_by == "replay" and self.lookback.starts(at):
                 (runner, _), searched = self._best_runner(p, at)
                 runner -= 1
+            pending = self.vec[_RUNNER] > 0    # a first location: a runner-up may follow
             self.vec[_RUNNER] = 0.0
             if runner >= 0 and self.lookback.starts(at):
                 # the change was not where the crossing pointed: the runner-up next
                 return self._locate(runner, t_s, runner_at=at, searched=searched)
+            if pending and p == CONICITY:
+                # no damper either: the conicity on its other side, from here
+                side = -self.vec[_LOC_SIDE]
+                fi = int(np.argmin(self.factors) if side < 0 else np.argmax(self.factors))
+                return self._locate(p * len(self.factors) + fi, t_s,
+                                    runner_at=self.lookback.count)
             # no change: every filter restarts from the reference's state (consistent
             # with theta_ref), as at a start; the grid's states fit only their own values
             self._watch_again(self._state_of(0))
