@@ -48,19 +48,18 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   (``runner_up``) another damper is located next, at once, replaying from the look-back
   before the confirmation (:meth:`FaultBank._runner_up`): since 2026-11-30
   (``runner_by``) the damper and side whose change-time search over that look-back sums
-  the most (:meth:`FaultBank._best_runner`), if that crosses ``h``; otherwise every filter
-  restarts from the reference's state and the bank watches again; a conicity location
-  that found no change, and no damper's search over ``h``, is followed by the
-  conicity's location on its other side (since 2026-11-30's eighteenth session). (Since
-  2026-11-30's
+  the most (:meth:`FaultBank._best_runner`), if that crosses ``h``; after a conicity
+  location, where no damper's does, the conicity on its other side, from the
+  reference's state then (since 2026-11-30's eighteenth session); otherwise every filter
+  restarts from the reference's state and the bank watches again. (Since 2026-11-30's
   fifteenth session, ``located_by``, the confirmation itself asks that search which
   parameter and side to locate: among the dampers for a crossing on a damper, among
   every parameter for one on the conicity; since the seventeenth, a damper it picks
   over the crossing's parameter keeps a runner-up too, and each location starts at the
-  change time its search found, without searching again.) In
-  between, the sum goes on, up to ``locate_max_s``, until one of the two holds (Wald: a
-  later look costs no more false detections). Optionally (``locate_min_s`` below
-  ``locate_s``; off by default) the sum stops early, after at least ``locate_min_s``, at
+  change time its search found, without searching again.) In between, the sum goes on,
+  up to ``locate_max_s``, until one of the two holds (Wald: a later look costs no
+  more false detections). Optionally (``locate_min_s`` below ``locate_s``; off by
+  default) the sum stops early, after at least ``locate_min_s``, at
   the first sample where the best value also leads every grid value outside its redraw
   range (three grid steps or more away) by ``h / 2``: for a correct model ``exp(-h /
   2)`` bounds the chance that a value that far from the truth ever leads it by that much
