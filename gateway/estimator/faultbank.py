@@ -844,7 +844,7 @@ class FaultBank:
             return self._runner_memo[1], self._runner_memo[2]
         starts = self.lookback.starts(at)
         x0, vec0 = self.x.copy(), self.vec.copy()
-        best, nf = (0, self.config.h_nats), len(self.factors)
+        best = (0, self.config.h_nats)
         counts: Searched = {}
         for q in params:
             for side in (-1.0, 1.0):
@@ -852,12 +852,17 @@ class FaultBank:
                 self._solve()
                 counts[(q, side)], total = self._glr_best(starts)
                 if total > best[1]:
-                    fi = int(np.argmin(self.factors) if side < 0 else np.argmax(self.factors))
-                    best = (1 + q * nf + fi, total)
+                    best = (1 + self._outermost(q, side), total)
         self.x, self.vec = x0, vec0
         self._solve()
         self._runner_memo = (key, best, counts)
         return best, counts
+
+    def _outermost(self, p: int, side: float) -> int:
+        """The watch's hypothesis of parameter ``p`` furthest out on ``side`` (< 0 a drop,
+        > 0 a rise): what a location of that parameter and side is named by."""
+        fi = int(np.argmin(self.factors) if side < 0 else np.argmax(self.factors))
+        return p * len(self.factors) + fi
 
     def _ratios(self, LL: np.ndarray, full: np.ndarray) -> np.ndarray:
         """Each hypothesis's log-likelihood ratio to the reference (k, J) from the
@@ -1085,9 +1090,7 @@ class FaultBank:
                 return self._locate(runner, t_s, runner_at=at, searched=searched)
             if pending and p == CONICITY:
                 # no damper either: the conicity on its other side, from here
-                side = -self.vec[_LOC_SIDE]
-                fi = int(np.argmin(self.factors) if side < 0 else np.argmax(self.factors))
-                return self._locate(p * len(self.factors) + fi, t_s,
+                return self._locate(self._outermost(p, -self.vec[_LOC_SIDE]), t_s,
                                     runner_at=self.lookback.count)
             # no change: every filter restarts from the reference's state (consistent
             # with theta_ref), as at a start; the grid's states fit only their own values
