@@ -49,8 +49,9 @@ average NIS, which a drifting cloud keeps quiet. The data hold far more (issue 1
   before the confirmation (:meth:`FaultBank._runner_up`): since 2026-11-30
   (``runner_by``) the damper and side whose change-time search over that look-back sums
   the most (:meth:`FaultBank._best_runner`), if that crosses ``h``; after a conicity
-  location, where no damper's does, the conicity on its other side, from the
-  reference's state then (since 2026-11-30's eighteenth session); otherwise every filter
+  location, the conicity on its other side where its search sums more than every
+  damper's (since the nineteenth session) or where no damper's crosses ``h`` (since the
+  eighteenth), from the reference's state then; otherwise every filter
   restarts from the reference's state and the bank watches again. (Since 2026-11-30's
   fifteenth session, ``located_by``, the confirmation itself asks that search which
   parameter and side to locate: among the dampers for a crossing on a damper, among
@@ -804,11 +805,14 @@ class FaultBank:
         j = max(others, key=lambda i: self.g[i])
         return float(j + 1) if self.g[j] > 0.0 else 0.0
 
-    def _best_runner(self, p: int, at: int) -> tuple[tuple[int, float], Searched]:
-        """The runner-up of a location of parameter ``p``: of every other damper's drop and
-        rise, the one whose location grid, run with steady gains from its likeliest change
-        time in the look-back before count ``at`` (:meth:`_glr_best`), sums the largest
-        log-likelihood ratio to the reference (:meth:`_best_search`). Returns (1 + a
+    def _best_runner(self, p: int, at: int, side: float
+                     ) -> tuple[tuple[int, float], Searched]:
+        """The runner-up of a location of parameter ``p`` on ``side`` that found no change:
+        of every other damper's drop and rise (and, after a conicity location, the
+        conicity's other side), the one whose location grid, run with steady gains from
+        its likeliest change time in the look-back before count ``at`` (:meth:`_glr_best`),
+        sums the largest log-likelihood ratio to the reference (:meth:`_best_search`).
+        Returns (1 + a
         hypothesis of that damper on that side, the sum), or (0, h) where no sum is over
         the watch's threshold ``h`` (the runner-up must cross it on its own, as the watch's
         CUSUM would: a location of lambda x 0.7 that found no change handed a Csay rise at
@@ -824,11 +828,21 @@ class FaultBank:
         Csy drop's search summed 7341 nats at its end). The change-time search starts
         every grid filter from the reference's state before the change, as the location
         itself will (the generalised likelihood ratio over the damper, the side and the
-        change time)."""
+        change time).
+
+        The conicity's other side competes with the dampers since the nineteenth session:
+        a conicity drop whose first transient read as a rise (the rise's location found
+        nothing) handed the runner-up to a Csay rise whose search crossed ``h`` though the
+        drop's summed more (seed 7091, 3 sensors, lambda x 0.5: 45.6 against 92.3 nats);
+        the Csay rise was located at 1.7 x, a wrong detection, and the drop found 2.7 s
+        later."""
+        if p == CONICITY:
+            return self._best_search(tuple(range(N_THETA)), at, skip=(CONICITY, side))
         return self._best_search(tuple(q for q in range(N_THETA) if q not in (p, CONICITY)),
                                  at)
 
-    def _best_search(self, params: tuple[int, ...], at: int
+    def _best_search(self, params: tuple[int, ...], at: int,
+                     skip: tuple[int, float] | None = None
                      ) -> tuple[tuple[int, float], Searched]:
         """Of the drop and rise of each parameter in ``params``, the one whose location
         grid's change-time search over the look-back before count ``at`` (not empty: the
@@ -837,9 +851,10 @@ class FaultBank:
         over the watch's threshold ``h``; and the change time (a count) the search found
         for each parameter and side, where a location of one of them from the same
         look-back at the same count starts without searching again (:meth:`_glr_start`).
-        The bank's state is as it was. Computed once per state and ``params`` (the
-        estimator rescans)."""
-        key = (self._memo_key(-1, 0.0, at), params)
+        The bank's state is as it was. ``skip``: a parameter and side left out (a
+        location that found nothing). Computed once per state, ``params`` and ``skip``
+        (the estimator rescans)."""
+        key = (self._memo_key(-1, 0.0, at), params, skip)
         if self._runner_memo is not None and self._runner_memo[0] == key:
             return self._runner_memo[1], self._runner_memo[2]
         starts = self.lookback.starts(at)
@@ -848,6 +863,8 @@ class FaultBank:
         counts: Searched = {}
         for q in params:
             for side in (-1.0, 1.0):
+                if (q, side) == skip:
+                    continue
                 self.vec[_MODE], self.vec[_LOC_P], self.vec[_LOC_SIDE] = _LOCATE, q, side
                 self._solve()
                 counts[(q, side)], total = self._glr_best(starts)
@@ -1065,15 +1082,18 @@ class FaultBank:
         by ``h_nats / 2`` over ``locate_s``; else no change on that side, and the pending
         runner-up is located next (:meth:`_locate_now`), or the bank watches again.
 
-        A conicity location's runner-up, where no damper's change-time search crosses
-        ``h``, is the conicity on its other side, from the reference's state here (the
-        conicity does not replay, :data:`CONICITY`). A conicity drop's first transient
-        can favour a rise: on the seventeenth session's fresh seeds both the crossing and
-        the search named lambda x 0.7 a rise (seed 6952, 5 sensors: 500 and 374 nats), the
-        rise's location found nothing, and the drop was found only after watching again,
-        +4.1-4.4 s median after the step, 2 of 8 never with 3 sensors (seeds 6950,
-        6951); with the other side located next, seeds 6950-6952 (3 sensors) were found
-        at +2.25 s, each likelihood interval holding the truth."""
+        A conicity location's runner-up is, of the dampers and the conicity's other side,
+        the one whose change-time search sums the most over ``h`` (:meth:`_best_runner`;
+        since the nineteenth session, before it the dampers only); where none crosses
+        ``h``, the conicity on its other side all the same. That side starts from the
+        reference's state here (the conicity does not replay, :data:`CONICITY`). A
+        conicity drop's first transient can favour a rise: on the seventeenth session's
+        fresh seeds both the crossing and the search named lambda x 0.7 a rise (seed
+        6952, 5 sensors: 500 and 374 nats), the rise's location found nothing, and the
+        drop was found only after watching again, +4.1-4.4 s median after the step, 2 of
+        8 never with 3 sensors (seeds 6950, 6951); with the other side located next,
+        seeds 6950-6952 (3 sensors) were found at +2.25 s, each likelihood interval
+        holding the truth."""
         grid = self.locate_grid()
         best = int(np.argmax(self.g))
         p = int(self.vec[_LOC_P])
@@ -1081,7 +1101,7 @@ class FaultBank:
             runner, at = int(self.vec[_RUNNER]) - 1, int(self.vec[_RUNNER_AT])
             searched: Searched = {}
             if runner >= 0 and self.config.runner_by == "replay" and self.lookback.starts(at):
-                (runner, _), searched = self._best_runner(p, at)
+                (runner, _), searched = self._best_runner(p, at, float(self.vec[_LOC_SIDE]))
                 runner -= 1
             pending = self.vec[_RUNNER] > 0    # a first location: a runner-up may follow
             self.vec[_RUNNER] = 0.0
