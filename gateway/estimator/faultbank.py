@@ -813,7 +813,7 @@ class FaultBank:
         its likeliest change time in the look-back before count ``at`` (:meth:`_glr_best`),
         sums the largest log-likelihood ratio to the reference (:meth:`_best_search`).
         Returns (1 + a
-        hypothesis of that damper on that side, the sum), or (0, h) where no sum is over
+        hypothesis of that parameter on that side, the sum), or (0, h) where no sum is over
         the watch's threshold ``h`` (the runner-up must cross it on its own, as the watch's
         CUSUM would: a location of lambda x 0.7 that found no change handed a Csay rise at
         10.5 nats to its location, which put it at 1.4 x nominal, seed 6573, 3 sensors);
@@ -1109,7 +1109,7 @@ class FaultBank:
                 # the change was not where the crossing pointed: the runner-up next
                 return self._locate(runner, t_s, runner_at=at, searched=searched)
             if pending and p == CONICITY:
-                # no damper either: the conicity on its other side, from here
+                # no search crossed h (the other side's either): that side, from here
                 return self._locate(self._outermost(p, -self.vec[_LOC_SIDE]), t_s,
                                     runner_at=self.lookback.count)
             # no change: every filter restarts from the reference's state (consistent
