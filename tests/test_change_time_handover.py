@@ -33,9 +33,9 @@ def _run(monkeypatch: pytest.MonkeyPatch, seed: int, repeat: bool
     glr_best, glr_start, locate_now = (FaultBank._glr_best, FaultBank._glr_start,
                                        FaultBank._locate_now)
 
-    def counted_best(self: FaultBank, starts: list) -> tuple[int, float]:
+    def counted_best(self: FaultBank, starts: list, *args: Any) -> tuple[int, float]:
         calls["search"] += 1
-        return glr_best(self, starts)
+        return glr_best(self, starts, *args)
 
     def start(self: FaultBank, starts: list, change_at: int | None = None) -> Any:
         calls["handed"] += change_at is not None

@@ -26,11 +26,13 @@ sixteenth session", not looked into); seed 6611 runs with the default.
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
-from firmware_sim.studies.detection import fault_row
-from firmware_sim.studies.filtering import FilterOptions
-from gateway.estimator.faultbank import FaultBankConfig
+from firmware_sim.studies.detection import fault_data, fault_row
+from firmware_sim.studies.filtering import FilterOptions, run, service_filter
+from gateway.estimator.faultbank import FaultBank, FaultBankConfig
 
 
 def _row(sensors: int, seed: int, located_by: str, warmup_s: float | None) -> dict:
@@ -52,3 +54,31 @@ def test_a_damper_step_the_watch_misnames_is_located_at_once(sensors: int, seed:
     assert new["wrong"] == 0, new                            # nothing else detected
     lo, hi = new["located_like_last"][:2]                    # the refined interval
     assert lo <= 0.25 <= hi, new
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("filter_seed", [1, 2, 3, 7])
+def test_every_grid_tries_the_change_time_any_grid_names(
+        monkeypatch: pytest.MonkeyPatch, filter_seed: int) -> None:
+    """Seed 6611's record under the filter seeds on which, until 2026-11-30's twentieth
+    session, the confirmation's search summed 10.5 nats for the Csy drop (its own Page
+    start 227 samples after the step, the sum from the step's sample 1128) and located a
+    Csay drop at 0.91-0.92 x a second after the step, a wrong detection, the Csy drop 3 s
+    after it. Every grid now also tries the Page starts of the others (the Csay drop's
+    was 4 samples before the step): the search names the Csy drop, located at once."""
+    nf = len(FaultBankConfig().factors)
+    named: list[int] = []
+    best_search = FaultBank._best_search
+
+    def recorded(self: FaultBank, *args: Any) -> Any:
+        (best, total), searched = best_search(self, *args)
+        named.append((best - 1) // nf)
+        return (best, total), searched
+
+    monkeypatch.setattr(FaultBank, "_best_search", recorded)
+    _, Y = fault_data(0, 0.25, 5, 6611, 18.0, 8.025)
+    _, found, _ = run(Y, service_filter(5, filter_seed))
+    assert named and named[0] == 0, named                   # the search names Csy
+    assert [f[1] for f in found] == ["csy_ns_per_m"], found  # nothing else detected
+    t_s, _, factor = found[0]
+    assert t_s - 8.025 <= 1.5 and 0.2 <= factor <= 0.3, found
