@@ -956,7 +956,7 @@ class FaultBank:
         either side and at most 36 elsewhere it looked, so the search summed 10.5 for
         it, and a Csay drop (276 nats from a Page start 4 samples before the step) was
         located at 0.92 x, a wrong detection, the Csy drop detected 3 s after the step
-        (on 3 of 6 filter seeds of that record)."""
+        (on 4 of 8 filter seeds of that record: 1, 2, 3, 7)."""
         assert self._gains is not None and self._model is not None
         n_first = starts[0][0]
         Y, full = self.lookback.samples(n_first)
