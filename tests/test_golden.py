@@ -13,11 +13,16 @@ change behaviour unnoticed. Fixtures in ``tests/golden/``:
 
 Volatile (machine- or path-dependent) fields are replaced by ``"<masked>"``:
 :data:`MASKED`. Everything else, floats included, must match byte for byte.
-The floats depend on OpenBLAS's kernels, which OpenBLAS picks by CPU: ``tests/run.sh``
-pins the Haswell (AVX2) ones, as the machines here do (``OPENBLAS_CORETYPE=Haswell``).
-The fixtures were recorded under that pin on 2026-11-26; before, they had been recorded
-with the SkylakeX kernels of an Intel host, and the code of 17c276b reproduces the new
-ones byte for byte under the pin. A deliberate behaviour change regenerates the fixtures:
+
+The floats depend on the CPU in three places, each pinned for these runs
+(:func:`reproducible_floats`): OpenBLAS picks its kernels by CPU (pinned to Haswell's,
+AVX2, as ``tests/run.sh`` and the machines here do); numba compiles for the host CPU
+(pinned to ``NUMBA_CPU_NAME=generic``, the portable target the vcan VM uses too); numpy
+dispatches its loops by CPU (every dispatched feature off: its baseline loops). Before
+2026-12-01 only OpenBLAS was pinned, and fixtures recorded on hosts with AVX-512 failed
+on an AMD EPYC host without it, every float moved by about 1e-10 relative (numba's
+vectors and numpy's AVX-512 loops), the Monte Carlo path otherwise the same.
+A deliberate behaviour change regenerates the fixtures:
 ``RAILGW_GOLDEN_UPDATE=1 pytest tests/test_golden.py`` (and says why in the commit).
 """
 
@@ -37,6 +42,13 @@ PARTICLES = "64"
 MASKED = {("settings", "file"), ("diagnostics", "wall_s"),
           ("diagnostics", "real_time_factor"), ("settings", "source"),
           ("diagnostics", "wall_time_s")}
+
+
+def reproducible_floats() -> dict[str, str]:
+    """The environment that makes the runs' floats the same on any x86-64 host with AVX2."""
+    from numpy._core._multiarray_umath import __cpu_dispatch__
+    return {"OPENBLAS_CORETYPE": "Haswell", "NUMBA_CPU_NAME": "generic",
+            "NPY_DISABLE_CPU_FEATURES": " ".join(__cpu_dispatch__)}
 
 
 def _masked(doc: dict[str, Any]) -> bytes:
@@ -70,7 +82,7 @@ def sim_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_replay_is_golden(cli, sim_log: Path, tmp_path: Path) -> None:
     proc = cli("gateway", "replay", str(sim_log), "--report", str(tmp_path / "r.json"),
                "--jsonl", str(tmp_path / "r.jsonl"), "--particles", PARTICLES,
-               "--no-progress", timeout=600)
+               "--no-progress", timeout=600, env=reproducible_floats())
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = (tmp_path / "r.jsonl").read_bytes()
     assert lines.count(b"\n") >= 5
@@ -81,6 +93,7 @@ def test_replay_is_golden(cli, sim_log: Path, tmp_path: Path) -> None:
 def test_estimate_is_golden(cli, tmp_path: Path) -> None:
     proc = cli("gateway", "estimate", str(GOLDEN / "estimate.csv"), "--report",
                str(tmp_path / "e.json"), "--particles", PARTICLES, "--seed", "1",
-               "--sensors", "3", "--history-every-s", "0.05", timeout=600)
+               "--sensors", "3", "--history-every-s", "0.05", timeout=600,
+               env=reproducible_floats())
     assert proc.returncode == 0, proc.stderr[-3000:]
     _check("estimate_report.json", _masked(json.loads((tmp_path / "e.json").read_text())))
