@@ -7,6 +7,7 @@ spawned worker, which imports this module), so these tests take seconds, not min
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import multiprocessing as mp
@@ -145,6 +146,30 @@ def test_sigint_and_sigterm_leave_the_worker_to_its_parent_who_takes_the_final_c
     assert link.stats.last_seq_done == 24 and link.stats.restarts == 0
     link.close()
     assert got[-1] == b"25"           # the final checkpoint: every sample stepped
+
+
+def test_a_worker_that_does_not_answer_the_stop_is_killed_and_the_log_says_what_was_missing(
+        caplog):
+    caplog.set_level(logging.WARNING, logger="gateway.runtime.worker")
+    link = WorkerLink(_settings(), queue_blocks=4, keep_spare=False)
+    assert link.wait_ready(60)
+    pid = link.pid
+    assert pid is not None
+    os.kill(pid, signal.SIGSTOP)      # frozen: it cannot take the stop or checkpoint
+    try:
+        link.close(timeout_s=0.5)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    assert not Path(f"/proc/{pid}").exists() or _state_of(pid) == "Z"
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert ("worker did not stop cleanly: expected its final checkpoint within 0.5 s, got no "
+            "reply (the last periodic checkpoint stands)") in warnings, warnings
+
+
+def _state_of(pid: int) -> str:
+    """Field 3 of /proc/PID/stat: R, S, T, Z..."""
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
 
 
 class GatedLink:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import tempfile
 import threading
 import time
@@ -54,6 +55,7 @@ class Monitor:
         self.values: dict[str, float] = {}
         self.stop = threading.Event()
         self.alerts: list[str] = []
+        self.estimate_frames = 0
         self.thread = threading.Thread(target=self._run, daemon=True, name="demo-monitor")
 
     def _run(self) -> None:
@@ -66,6 +68,8 @@ class Monitor:
             except FrameError:
                 continue
             self.values.update(frame.values)
+            if frame.message.startswith("GW_Est"):
+                self.estimate_frames += 1
             if frame.message == "GW_Alert":
                 v = frame.values
                 sev = self.codec.choices("GW_Alert", "GW_Alert_Severity").get(
@@ -136,7 +140,13 @@ def run(args: argparse.Namespace) -> int:
         monitor.stop.set()
         monitor.thread.join(timeout=1)
         monitor.bus.shutdown()
-    print(f"demo finished: {len(monitor.alerts)} alert event(s) on the bus")
+    print(f"demo finished: {monitor.estimate_frames} estimate frame(s) and "
+          f"{len(monitor.alerts)} alert event(s) on the bus")
+    if code == 0 and monitor.estimate_frames == 0:
+        print(f"demo failed: expected estimate frames back off the bus within "
+              f"{args.duration:g} s, got none (the estimator worker never caught up: "
+              "a loaded machine or a first run's kernel compile)", file=sys.stderr)
+        return 1
     return code
 
 

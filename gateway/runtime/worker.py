@@ -553,8 +553,16 @@ class WorkerLink:
                         pass
                     case _:
                         assert_never(reply)
-        except (queue.Empty, queue.Full, OSError, ValueError) as err:
-            log.warning("worker did not stop cleanly: %s", err)
+        except queue.Empty:
+            log.warning("worker did not stop cleanly: expected its final checkpoint within "
+                        "%.1f s, got no reply (the last periodic checkpoint stands)", timeout_s)
+        except queue.Full:
+            log.warning("worker did not stop cleanly: expected room in its input queue "
+                        "within %.1f s, it stayed full (the last periodic checkpoint "
+                        "stands)", timeout_s)
+        except (OSError, ValueError) as err:
+            log.warning("worker did not stop cleanly: its queues failed: %s: %s",
+                        type(err).__name__, err)
         self._proc.join(timeout=timeout_s)
         if self._proc.is_alive():
             self._proc.kill()
