@@ -26,17 +26,20 @@ echo "== mypy"
 .venv/bin/mypy
 echo "== import layers (lint-imports: [tool.importlinter] in pyproject.toml)"
 .venv/bin/lint-imports --no-cache
+# Reproducible floats: OpenBLAS, numba and numpy pick their code by CPU, and the rounding
+# moves a particle filter's Monte Carlo path (the golden files, single-record tests).
+# On x86-64 with AVX2, pin all three to AVX2 (Haswell) unless set already
+# (tests/floatpin.py), before the pre-compile, so its kernels are the tests' kernels.
+if grep -qw avx2 /proc/cpuinfo 2>/dev/null; then
+  eval "$(.venv/bin/python tests/floatpin.py)"
+fi
 echo "== estimator kernels into numba's cache, one per core (python -m gateway.estimator.precompile)"
 .venv/bin/python -m gateway.estimator.precompile
 echo "== pytest"
-# Reproducible floats: OpenBLAS (in numpy and scipy) picks its kernels by CPU at load
-# time, and their rounding moves a particle filter's Monte Carlo path (the golden files,
-# single-record tests). Pin the Haswell (AVX2) kernels on x86-64 unless set already; the
-# machines this project is built on set OPENBLAS_CORETYPE=Haswell themselves.
-if [ -z "${OPENBLAS_CORETYPE:-}" ] && grep -qw avx2 /proc/cpuinfo 2>/dev/null; then
-  export OPENBLAS_CORETYPE=Haswell
-fi
-.venv/bin/python -m pytest "$@"
+# pytest-xdist: one test file per worker process at a time (--dist loadfile keeps a file's
+# module fixtures in one process), as many workers as cores; RAILGW_PYTEST_WORKERS=0 runs
+# the suite in this process, one test at a time.
+.venv/bin/python -m pytest -n "${RAILGW_PYTEST_WORKERS:-$(nproc)}" --dist loadfile "$@"
 
 # ---- vcan suite (issue 7: tests/vm/, tests/vcan/, docs/vcan.md) --------------------
 # The vcan tests need a kernel CAN interface, which this kernel lacks: the host run

@@ -14,14 +14,12 @@ change behaviour unnoticed. Fixtures in ``tests/golden/``:
 Volatile (machine- or path-dependent) fields are replaced by ``"<masked>"``:
 :data:`MASKED`. Everything else, floats included, must match byte for byte.
 
-The floats depend on the CPU in three places, each pinned for these runs
-(:func:`reproducible_floats`): OpenBLAS picks its kernels by CPU (pinned to Haswell's,
-AVX2, as ``tests/run.sh`` and the machines here do); numba compiles for the host CPU
-(pinned to ``NUMBA_CPU_NAME=generic``, the portable target the vcan VM uses too); numpy
-dispatches its loops by CPU (every dispatched feature off: its baseline loops). Before
-2026-12-01 only OpenBLAS was pinned, and fixtures recorded on hosts with AVX-512 failed
-on an AMD EPYC host without it, every float moved by about 1e-10 relative (numba's
-vectors and numpy's AVX-512 loops), the Monte Carlo path otherwise the same.
+The floats depend on the CPU in three places (OpenBLAS's kernels, numba's target,
+numpy's dispatched loops), each pinned to AVX2 for these runs whatever the caller's
+environment: ``tests/floatpin.py``, which ``tests/run.sh`` exports for the whole suite
+(so these runs use the pre-compiled kernels). Before 2026-12-01 only OpenBLAS was
+pinned, and fixtures recorded on hosts with AVX-512 failed on an AMD EPYC host without
+it, every float moved by about 1e-10 (relative), the Monte Carlo path otherwise the same.
 A deliberate behaviour change regenerates the fixtures:
 ``RAILGW_GOLDEN_UPDATE=1 pytest tests/test_golden.py`` (and says why in the commit).
 """
@@ -35,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from floatpin import reproducible_floats
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 UPDATE = os.environ.get("RAILGW_GOLDEN_UPDATE") == "1"
@@ -42,13 +41,6 @@ PARTICLES = "64"
 MASKED = {("settings", "file"), ("diagnostics", "wall_s"),
           ("diagnostics", "real_time_factor"), ("settings", "source"),
           ("diagnostics", "wall_time_s")}
-
-
-def reproducible_floats() -> dict[str, str]:
-    """The environment that makes the runs' floats the same on any x86-64 host with AVX2."""
-    from numpy._core._multiarray_umath import __cpu_dispatch__
-    return {"OPENBLAS_CORETYPE": "Haswell", "NUMBA_CPU_NAME": "generic",
-            "NPY_DISABLE_CPU_FEATURES": " ".join(__cpu_dispatch__)}
 
 
 def _masked(doc: dict[str, Any]) -> bytes:

@@ -9,10 +9,13 @@ cannot, and this test keeps it so.
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import shutil
 import subprocess
 import sys
 import tarfile
+import tempfile
 import zipfile
 from pathlib import Path
 
@@ -35,9 +38,18 @@ def tracked_sources(root: Path = ROOT) -> set[str]:
 
 
 def build_dists(out_dir: Path, root: Path = ROOT) -> tuple[Path, Path]:
-    """``python -m build`` (sdist, then the wheel from the sdist) -> (sdist, wheel)."""
-    proc = subprocess.run([sys.executable, "-m", "build", "--outdir", str(out_dir), str(root)],
-                          capture_output=True, text=True)
+    """``python -m build`` (sdist, then the wheel from the sdist) -> (sdist, wheel).
+
+    One build of a source tree at a time (a lock beside the system's temporary files):
+    the sdist step writes the tree's ``*.egg-info``, and the packaging check and the
+    smoke suite may run at once under pytest-xdist.
+    """
+    tree = hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:16]
+    lock = Path(tempfile.gettempdir()) / f"railgw-build-{tree}.lock"
+    with open(lock, "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        proc = subprocess.run([sys.executable, "-m", "build", "--outdir", str(out_dir),
+                               str(root)], capture_output=True, text=True)
     assert proc.returncode == 0, f"python -m build failed:\n{proc.stdout[-3000:]}{proc.stderr}"
     (sdist,), (wheel,) = out_dir.glob("*.tar.gz"), out_dir.glob("*.whl")
     return sdist, wheel
