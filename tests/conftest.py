@@ -27,6 +27,25 @@ def run_cli(*args: str, timeout: float = 300.0,
                           timeout=timeout, cwd=ROOT, env={**os.environ, **(env or {})})
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--serial-only", action="store_true",
+                     help="run only the tests marked serial (tests/run.sh's second pass)")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Tests marked ``serial`` assert a wall-clock bound: under pytest-xdist's workers they
+    are left to the serial pass (``--serial-only``), which runs nothing else."""
+    serial_only = config.getoption("--serial-only")
+    in_worker = hasattr(config, "workerinput")
+    if not serial_only and not in_worker:
+        return
+    keep = [i for i in items if (i.get_closest_marker("serial") is not None) == serial_only]
+    dropped = [i for i in items if i not in keep]
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        items[:] = keep
+
+
 @pytest.fixture()
 def cli():
     return run_cli

@@ -282,6 +282,7 @@ def test_encode_errors(codec: Codec) -> None:
     assert info.value.reason == "counter"
 
 
+@pytest.mark.serial
 def test_decode_throughput_well_above_8000_frames_per_s(codec: Codec) -> None:
     frames = [(0x101 + i % 3, codec.encode(name, vals, i % 15)) for i, (name, vals) in
               enumerate([("WSN_Lat", {"WSN_Lat_SampleIdx": 1, "WSN_Acc1": 0.1, "WSN_Acc2": 0.2}),

@@ -527,6 +527,7 @@ def test_config_is_validated():
         Resampler(ResamplerConfig(fs_hz=50.0, lowpass_hz=PAPER_LOWPASS_HZ), periods_s=PERIODS_S)
 
 
+@pytest.mark.serial
 def test_throughput_is_well_above_a_full_bus():
     _, frames = traffic("nominal", 4.0)
     rs = Resampler(PAPER, periods_s=PERIODS_S)

@@ -147,6 +147,7 @@ def test_start_time_out_is_extended_until_the_worker_is_up(tmp_path, monkeypatch
     assert all("warming up" in st for st in statuses), statuses
 
 
+@pytest.mark.serial
 def test_worker_sigkill_resumes_from_checkpoint_within_2_s(tmp_path):
     with Running(tmp_path, "kill") as run:
         sender = run.play("nominal", 20.0)
@@ -181,6 +182,7 @@ def test_the_demo_runs_the_services_particle_count() -> None:
     assert args.particles == Config().estimator.particles == 1000
 
 
+@pytest.mark.serial
 def test_sigterm_stops_cleanly_within_5_s_and_restart_resumes(tmp_path):
     state = tmp_path / "state"
     proc = _demo(state, "nominal", 120, tmp_path / "one.log")
