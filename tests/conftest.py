@@ -39,8 +39,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     in_worker = hasattr(config, "workerinput")
     if not serial_only and not in_worker:
         return
-    keep = [i for i in items if (i.get_closest_marker("serial") is not None) == serial_only]
-    dropped = [i for i in items if i not in keep]
+    keep: list[pytest.Item] = []
+    dropped: list[pytest.Item] = []
+    for item in items:
+        is_serial = item.get_closest_marker("serial") is not None
+        (keep if is_serial == serial_only else dropped).append(item)
     if dropped:
         config.hook.pytest_deselected(items=dropped)
         items[:] = keep
