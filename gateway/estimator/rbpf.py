@@ -59,6 +59,7 @@ from gateway.estimator import observability as obs
 from gateway.estimator import particles as pt
 from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.faultbank import Detection, FaultBank, FaultBankConfig
+from gateway.estimator.gainfit import FITTED, fitted_gains
 from gateway.estimator.kalman import from_lanes, kf_block, kf_step, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
 from gateway.estimator.monitor import MonitorConfig, after_reseed, initial_state, update
@@ -286,7 +287,7 @@ class RBPF:
         after a lost frame the gains and the steady P+ the exact recursion rejoins."""
         self._disc.compute(self.theta[:, :3], self._q(), self._phi, self._qd)
         if self._steady:
-            self._recompute_gains(start)
+            self._recompute_gains(start, fit=True)
             self._P = self._gains.p_pred
         elif self._rejoin:
             self._recompute_gains(start)
@@ -302,6 +303,10 @@ class RBPF:
         if solve:
             self._recompute_gains()
         self._P = self._gains.p_pred
+
+    def _fitted(self) -> bool:
+        """Whether any particle's steady gains were fitted at the last move, not solved."""
+        return bool((self._gains.iters[:self.config.n_particles] == FITTED).any())
 
     def _end_rejoin(self) -> None:
         """The exact recursion no longer rejoins the steady gains by distance (a hold, a
@@ -327,7 +332,10 @@ class RBPF:
         data has passed; after a ``partial`` sample (some sensors: a lost frame) also as
         soon as P is back at that steady state (:mod:`gateway.estimator.rejoin`; the gains
         are kept for it, and a move solves them again from its ancestors', as in the
-        steady phase) (docs/estimator.md "Samples without every sensor")."""
+        steady phase) (docs/estimator.md "Samples without every sensor"). Fitted gains are
+        solved first (from themselves): the rejoin is measured against this P+."""
+        if self._fitted():
+            self._recompute_gains(self._gains.p_pred.copy())
         P = self._steady_post()
         self._P = to_lanes(P.reshape(len(P), -1))
         self._steady = False
@@ -416,10 +424,18 @@ class RBPF:
             self._v0_key = (self.z, self._null)
         return self._v0
 
-    def _recompute_gains(self, start: np.ndarray | None = None) -> None:
+    def _recompute_gains(self, start: np.ndarray | None = None, fit: bool = False) -> None:
         """Fast mode: every particle's steady-state filter at its theta and v_ref, solved
-        cold or from ``start`` (:func:`gateway.estimator.steady.steady_gains`)."""
+        cold or from ``start`` (:func:`gateway.estimator.steady.steady_gains`); with
+        ``fit`` (a move in the steady phase) fitted over the cloud where the fit holds
+        (:mod:`gateway.estimator.gainfit`). The exact recursion's way back after a lost
+        frame solves every particle: it rejoins the steady P+ at a distance of
+        ``REJOIN_TOL``, the fit's own tolerance, so a fitted target could stay out of
+        reach (measured: the bench's lossy run stayed in the exact recursion)."""
         v0 = to_lanes(self._particle_null())
+        if fit and start is not None and fitted_gains(self.theta, self._phi, self._qd, v0,
+                                                      self._H, self._r, self._gains, start):
+            return
         steady_gains(self._phi, self._qd, v0, self._H, self._r, self._gains, start=start)
 
     # ------------------------------------------------------------------ step

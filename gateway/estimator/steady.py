@@ -520,7 +520,7 @@ class SteadyGains:
     def take(self, particles: np.ndarray) -> np.ndarray:
         """The P- of ``particles`` (flat indices, in order), lane layout: a warm start
         for :func:`steady_gains` (a move's ancestors)."""
-        return _take(self.p_pred, np.asarray(particles, dtype=np.int64))
+        return take_lanes(self.p_pred, np.asarray(particles, dtype=np.int64))
 
     @classmethod
     def empty(cls, n_chunks: int, ny: int) -> SteadyGains:
@@ -597,23 +597,23 @@ def steady_gains(phi: np.ndarray, qd: np.ndarray, v0: np.ndarray, H: np.ndarray,
     cold = np.flatnonzero(out.iters == 0)
     if len(cold):
         sub = SteadyGains.empty(n_chunks(len(cold)), len(r))
-        _sda_kernel(_take(phi, cold), _take(qd, cold), g0, _take(v0, cold), Hc, rc,
+        _sda_kernel(take_lanes(phi, cold), take_lanes(qd, cold), g0, take_lanes(v0, cold), Hc, rc,
                     float(tol), MAX_ITER, sub.p_pred, False, 0, sub.p_pred, sub.g, sub.s,
                     sub.c0, sub.iters)
         for name in ("p_pred", "g", "s"):
-            _put(getattr(out, name), cold, getattr(sub, name))
+            put_lanes(getattr(out, name), cold, getattr(sub, name))
         out.c0[cold] = sub.c0[:len(cold)]
         out.iters[cold] = sub.iters[:len(cold)]
 
 
-def _take(a: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+def take_lanes(a: np.ndarray, lanes: np.ndarray) -> np.ndarray:
     """The lanes ``lanes`` (flat particle indices) of the lane-layout ``a`` (n_chunks,
     k * LANES), as a lane-layout batch of their own."""
     per = a.reshape(a.shape[0], -1, LANES)
     return to_lanes(per[lanes // LANES, :, lanes % LANES])
 
 
-def _put(a: np.ndarray, lanes: np.ndarray, sub: np.ndarray) -> None:
+def put_lanes(a: np.ndarray, lanes: np.ndarray, sub: np.ndarray) -> None:
     """Write the first ``len(lanes)`` particles of the lane-layout ``sub`` into lanes
     ``lanes`` of ``a``, in place."""
     per = a.reshape(a.shape[0], -1, LANES)
