@@ -20,7 +20,8 @@ filter for fixed theta. See docs/estimator.md.
 Modes (``config.mode``): ``"exact"`` runs that recursion throughout; ``"fast"`` runs it
 for ``fast_warmup_s`` after every filter start, then gives every particle the steady
 state of its recursion (a DARE solve per move or speed band,
-:mod:`gateway.estimator.steady`) and steps only the means; a sample without every sensor
+:mod:`gateway.estimator.steady`, fitted over the cloud at a move where the fit holds,
+:mod:`gateway.estimator.gainfit`) and steps only the means; a sample without every sensor
 (a hold, a lost frame) hands it back to the exact recursion, from the steady covariance,
 for ``fast_warmup_s`` of full data (a lost frame inside it leaves at least ``SETTLE_S``
 to go) or, after a lost frame, until P is back at the steady state
