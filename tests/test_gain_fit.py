@@ -130,3 +130,19 @@ def test_a_lost_frame_after_a_fitted_move_solves_the_gains_and_rejoins() -> None
         filt.advance(S[k])
         k += 1
     assert filt._steady and k - 3000 < 150, k
+
+
+def test_a_checkpoint_with_fitted_gains_continues_bit_for_bit() -> None:
+    """The fitted gains are kept in a fast-mode checkpoint like solved ones (they depend
+    on the history too): a checkpoint after fitted moves continues bit for bit, through
+    more fitted moves."""
+    Y = _outputs(4500, 3, seed=23)
+    filt = _running(512, Y, 3000)
+    assert filt._steady and filt._fitted()
+    twin = RBPF.restore(filt.checkpoint())
+    S = _samples(Y)[3000:]
+    moves = filt.n_resamples
+    a, b = filt.run(S), twin.run(S)
+    assert filt.n_resamples > moves and filt._fitted()
+    assert [e.mean for e in a] == [e.mean for e in b]
+    assert [e.std for e in a] == [e.std for e in b]
