@@ -23,10 +23,11 @@ import numpy as np
 import pytest
 
 from firmware_sim.studies.detection import fault_row
+from firmware_sim.studies.filtering import FilterOptions
 from gateway.estimator.faultbank import FaultBank
 
 
-def _run(monkeypatch: pytest.MonkeyPatch, seed: int, repeat: bool
+def _run(monkeypatch: pytest.MonkeyPatch, seed: int, gain_fit: bool | None, repeat: bool
          ) -> tuple[dict, list, int, int]:
     """The record's row, every location's outcome, the change-time searches run, and the
     locations that replayed from a search's change time (``repeat``: searched again)."""
@@ -57,17 +58,22 @@ def _run(monkeypatch: pytest.MonkeyPatch, seed: int, repeat: bool
     monkeypatch.setattr(FaultBank, "_glr_best", counted_best)
     monkeypatch.setattr(FaultBank, "_glr_start", start)
     monkeypatch.setattr(FaultBank, "_locate_now", recorded)
-    row = fault_row(0, 0.25, 5, seed, seconds=10.0, fault_at_s=8.025)
+    row = fault_row(0, 0.25, 5, seed, seconds=10.0, fault_at_s=8.025,
+                    options=FilterOptions(gain_fit=gain_fit))
     monkeypatch.undo()
     return row, located, calls["search"], calls["handed"]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed, locations", [(6611, 1), (6908, 2)])   # first, runner-up
+@pytest.mark.parametrize("seed, locations, gain_fit", [
+    (6611, 1, None),     # the first location
+    (6908, 2, False)])   # the runner-up's: found with every particle's gains solved
 def test_the_location_starts_at_the_searchs_change_time_without_searching_again(
-        monkeypatch: pytest.MonkeyPatch, seed: int, locations: int) -> None:
-    row, located, searches, handed = _run(monkeypatch, seed, repeat=False)
-    old_row, old_located, old_searches, old_handed = _run(monkeypatch, seed, repeat=True)
+        monkeypatch: pytest.MonkeyPatch, seed: int, locations: int,
+        gain_fit: bool | None) -> None:
+    row, located, searches, handed = _run(monkeypatch, seed, gain_fit, repeat=False)
+    old_row, old_located, old_searches, old_handed = _run(monkeypatch, seed, gain_fit,
+                                                          repeat=True)
     assert row["detect_s"] is not None and row["detect_s"] <= 1.5, row   # found at once
     assert row["wrong"] == 0 and row["alerts_healthy"] == 0, row
     # every location computed (a rescan computes one again) started where a search ended

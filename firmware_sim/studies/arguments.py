@@ -73,6 +73,10 @@ def add_filter_options(ap: argparse.ArgumentParser) -> None:
                     help="fast mode's exact warm-up after every filter start and hold, s "
                          "(default: the filter's own, 0.5; 2 before 2026-11-30's sixteenth "
                          "session; the filter's configuration checks it)")
+    ap.add_argument("--gain-fit", action=argparse.BooleanOptionalAction, default=None,
+                    help="fast mode's gains fitted over the cloud at a move (default: the "
+                         "filter's own, on since 2026-12-01; --no-gain-fit solves every "
+                         "particle's, as before)")
     ap.add_argument("--redraw-from", choices=REDRAWS, default=None,
                     help="how a detection redraws its parameter (default: the bank's own; "
                          "range: log-uniformly over the redraw range, as before "
@@ -113,7 +117,8 @@ def filter_options(ap: argparse.ArgumentParser, args: argparse.Namespace) -> Fil
         return FilterOptions(
             particles=args.particles, mode=args.mode, sensor_noise=args.sensor_noise,
             kernel_delta=args.kernel_delta, moves_drop_null=args.moves_drop_null,
-            fast_warmup_s=args.fast_warmup_s, redraw_from=args.redraw_from,
+            fast_warmup_s=args.fast_warmup_s, gain_fit=args.gain_fit,
+            redraw_from=args.redraw_from,
             locate_min_s=args.locate_min_s, locate_max_s=args.locate_max_s,
             replay_s=args.replay_s,
             replay_cov_scale=args.replay_cov_scale, refine_s=args.refine_s,

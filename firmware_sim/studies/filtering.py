@@ -42,7 +42,7 @@ it: decision time (s), parameter name, located value relative to nominal, confir
 time (s)."""
 
 _RBPF_OVERRIDES = ("moves_drop_null", "start_ramp_s", "start_ramp_m", "prior_lo",
-                   "fast_warmup_s")
+                   "fast_warmup_s", "gain_fit")
 _BANK_OVERRIDES = ("locate_min_s", "locate_max_s", "replay_s", "replay_cov_scale",
                    "redraw_from", "refine_s", "runner_up", "runner_by", "located_by")
 
@@ -65,7 +65,8 @@ class FilterOptions:
     ``moves_drop_null``, ``start_ramp_s``, ``start_ramp_m`` and ``prior_lo`` (the prior
     box's lower edges, e.g. the paper's (0.3, 0.3, 0.3) where the service's filter, from
     500 particles on, takes (0.1, 0.1, 0.3)) and ``fast_warmup_s`` (fast mode's exact
-    warm-up, s; 2 s before 2026-11-30's sixteenth session) override those options of the
+    warm-up, s; 2 s before 2026-11-30's sixteenth session) and ``gain_fit`` (False: every
+    particle's steady gains solved at a move, as before 2026-12-01) override those options of the
     filter (:class:`gateway.estimator.rbpf_config.RBPFConfig`, which checks them, as the
     bank's below); ``locate_min_s``,
     ``locate_max_s``, ``replay_s``, ``replay_cov_scale``, ``redraw_from``,
@@ -83,6 +84,7 @@ class FilterOptions:
     start_ramp_m: float | None = None
     prior_lo: tuple[float, float, float] | None = None
     fast_warmup_s: float | None = None
+    gain_fit: bool | None = None
     locate_min_s: float | None = None
     locate_max_s: float | None = None
     replay_s: float | None = None
@@ -190,6 +192,7 @@ def _last(filt: Filter) -> Found:
 def filter_columns(filt: Filter) -> dict[str, Any]:
     """The filter's settings as a study's row columns: its sensor-noise test's outcome
     (the variances used relative to the model's), ``moves_drop_null``, ``fast_warmup_s``,
+    ``gain_fit``,
     the fault bank's location settings (None: no bank) and the kernel's delta."""
     res = filt.result if isinstance(filt, NoiseCheckedStart) else None
     bank = filt.config.faults
@@ -198,6 +201,7 @@ def filter_columns(filt: Filter) -> dict[str, Any]:
                 round(u / m, 3) for u, m in zip(res.used_var, res.model_var, strict=True)],
             "moves_drop_null": filt.config.moves_drop_null,
             "fast_warmup_s": filt.config.fast_warmup_s,
+            "gain_fit": filt.config.gain_fit,
             **{name: None if bank is None else getattr(bank, name)
                for name in ("redraw_from", "locate_min_s", "locate_s", "locate_max_s",
                             "replay_s", "replay_cov_scale", "refine_s", "runner_up",

@@ -288,7 +288,7 @@ class RBPF:
         after a lost frame the gains and the steady P+ the exact recursion rejoins."""
         self._disc.compute(self.theta[:, :3], self._q(), self._phi, self._qd)
         if self._steady:
-            self._recompute_gains(start, fit=True)
+            self._recompute_gains(start, fit=self.config.gain_fit)
             self._P = self._gains.p_pred
         elif self._rejoin:
             self._recompute_gains(start)

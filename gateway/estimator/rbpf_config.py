@@ -115,6 +115,11 @@ class RBPFConfig:
     calibration and detection on fresh paired campaigns at 1.4 times the whole-run
     speed; fast and exact mode then part at 0.5 s (docs/estimator.md "Start of every
     filter", "The sixteenth session");
+    ``gain_fit``: in fast mode, a resample-move in the steady phase solves a few
+    particles' steady filters and fits the rest over the cloud where the fit holds to
+    1e-3 (:mod:`gateway.estimator.gainfit`; docs/estimator.md "The twenty-second
+    session"); False solves every particle's (the path before 2026-12-01, which the
+    single-record tests found on it keep);
     ``moves_drop_null``: a moved particle keeps its ancestor's state less the component
     along the ancestor's static-yaw null vector (:func:`gateway.estimator.steady.without_null`);
     on by default since 2026-11-25 (docs/estimator.md "Calibration of the stated sigma": it
@@ -171,6 +176,7 @@ class RBPFConfig:
     threads: int | None = None
     mode: str = "exact"
     fast_warmup_s: float = 0.5
+    gain_fit: bool = True
     output_every: int = 1
     moves_drop_null: bool = True
     start_ramp_s: float = 0.0
