@@ -17,8 +17,7 @@ from dataclasses import replace
 
 import numba
 
-from firmware_sim.studies.sweep import (bench_data, filter_config, service_filter_config,
-                                        time_filter)
+from firmware_sim.studies.sweep import bench_data, filter_config, service_filter_config, time_filter
 from gateway.model.vehicle import AR_PAPER_DEFAULT
 
 ROUNDS = int(sys.argv[1]) if len(sys.argv) > 1 else 3
