@@ -32,11 +32,36 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                      help="run only the tests marked serial (tests/run.sh's second pass)")
 
 
+HEAVY_FIRST = ("test_alert_replay.py", "smoke/test_installed_wheel.py", "test_rbpf_drift.py",
+               "test_node_timing_estimate.py", "test_fault_injection.py", "test_service.py",
+               "test_faultbank.py", "test_fleet_loop.py", "test_fuzz_inputs.py",
+               "test_dead_sensor.py", "test_identify_canlog.py", "test_calibration.py")
+"""Test files of minutes each (docs/ci.md, measured 2026-12-01), longest first: pytest-xdist
+workers get them before the rest (``tests/run.sh`` passes ``--no-loadscope-reorder``,
+which keeps this order instead of xdist's most-tests-first), so the short files fill the
+end of the run instead of one long file running alone. Order only, never selection."""
+
+
+def _heavy_first(items: list[pytest.Item]) -> None:
+    """Reorder ``items`` in place: the files of :data:`HEAVY_FIRST` in its order, then the
+    rest as collected; each file's own tests keep their order."""
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+
+    def key(pair: tuple[int, pytest.Item]) -> tuple[int, int]:
+        path = pair[1].nodeid.split("::", 1)[0].removeprefix("tests/")
+        return rank.get(path, len(rank)), pair[0]
+
+    items[:] = [item for _, item in sorted(enumerate(items), key=key)]
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Tests marked ``serial`` assert a wall-clock bound: under pytest-xdist's workers they
-    are left to the serial pass (``--serial-only``), which runs nothing else."""
+    are left to the serial pass (``--serial-only``), which runs nothing else. A worker's
+    collection puts the long files first (:data:`HEAVY_FIRST`)."""
     serial_only = config.getoption("--serial-only")
     in_worker = hasattr(config, "workerinput")
+    if in_worker:
+        _heavy_first(items)
     if not serial_only and not in_worker:
         return
     keep: list[pytest.Item] = []
