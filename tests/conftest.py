@@ -46,12 +46,8 @@ def _heavy_first(items: list[pytest.Item]) -> None:
     """Reorder ``items`` in place: the files of :data:`HEAVY_FIRST` in its order, then the
     rest as collected; each file's own tests keep their order."""
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
-
-    def key(pair: tuple[int, pytest.Item]) -> tuple[int, int]:
-        path = pair[1].nodeid.split("::", 1)[0].removeprefix("tests/")
-        return rank.get(path, len(rank)), pair[0]
-
-    items[:] = [item for _, item in sorted(enumerate(items), key=key)]
+    items.sort(key=lambda item: rank.get(
+        item.nodeid.split("::", 1)[0].removeprefix("tests/"), len(rank)))   # stable
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
