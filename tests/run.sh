@@ -39,7 +39,8 @@ echo "== pytest"
 # pytest-xdist: one test file per worker process at a time (--dist loadfile keeps a file's
 # module fixtures in one process), as many workers as cores, the longest files first
 # (tests/conftest.py HEAVY_FIRST; --no-loadscope-reorder keeps that order); then the tests marked
-# `serial` (they assert a wall-clock bound) alone, in one process. Exit status 5 (no tests
+# `serial` (they assert a wall-clock bound) alone, in one process; --durations=40 lists the
+# longest tests in the log (where the CI time goes). Exit status 5 (no tests
 # ran) is a failure unless the other pass ran tests. RAILGW_PYTEST_WORKERS=0 runs the
 # whole suite in this process, one test at a time.
 workers=${RAILGW_PYTEST_WORKERS:-$(nproc)}
@@ -47,7 +48,7 @@ if [ "$workers" = 0 ]; then
   .venv/bin/python -m pytest -p no:xdist "$@"
 else
   rc_par=0; rc_ser=0
-  .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder "$@" || rc_par=$?
+  .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder --durations=40 "$@" || rc_par=$?
   echo "== pytest: the tests marked serial, alone (--serial-only)"
   .venv/bin/python -m pytest -p no:xdist --serial-only "$@" || rc_ser=$?
   if [ "$rc_par" = 5 ] && [ "$rc_ser" = 5 ]; then exit 5; fi

@@ -216,3 +216,22 @@ def test_lost_frames_are_the_share_asked_for_and_nothing_else_changes():
     assert np.array_equal(lossy.y[~lost], data.y[~lost])
     assert all(np.array_equal(s.values, y, equal_nan=True)
                for s, y in zip(lossy.samples, lossy.y, strict=True))
+
+
+def test_pipeline_bench_runs_every_frame_through_the_front_end(capsys):
+    """The front end's throughput is the bench's to measure (the serial tests that timed
+    the resampler and the decoder failed on a slow host): here only that it decodes every
+    simulator frame and puts 10 s of them on the 1 kHz grid."""
+    from firmware_sim.scenarios import get_scenario
+    from firmware_sim.simulation import SimConfig, Simulation
+
+    r = bench_json(["--what", "pipeline", "--seed", "3"], capsys)["pipeline"]
+    sent = sum(1 for _ in Simulation(get_scenario("nominal"),
+                                     SimConfig(duration_s=10.0, seed=3)).messages())
+    assert r["frames"] == sent > 0
+    assert 9_900 <= r["grid_points"] <= 10_001
+    for key in ("frames_per_cpu_s", "decode_frames_per_cpu_s", "cpu_s"):
+        assert positive(r[key]), (key, r[key])
+    assert r["cpu_share_at_full_bus_pct"] == pytest.approx(
+        100.0 * 8000.0 / r["frames_per_cpu_s"])
+    assert r["sustains_full_bus_on_one_core"] == (r["frames_per_cpu_s"] >= 8000.0)

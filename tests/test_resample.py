@@ -7,7 +7,6 @@ import math
 import pickle
 import subprocess
 import sys
-import time
 from functools import lru_cache
 
 import numpy as np
@@ -525,18 +524,6 @@ def test_config_is_validated():
         ResamplerConfig(fs_hz=1000.0, lowpass_hz=NO_LOWPASS_HZ, interpolation="cubic")
     with pytest.raises(ConfigError, match="cutoff"):
         Resampler(ResamplerConfig(fs_hz=50.0, lowpass_hz=PAPER_LOWPASS_HZ), periods_s=PERIODS_S)
-
-
-@pytest.mark.serial
-def test_throughput_is_well_above_a_full_bus():
-    _, frames = traffic("nominal", 4.0)
-    rs = Resampler(PAPER, periods_s=PERIODS_S)
-    t0 = time.perf_counter()
-    for f in frames:
-        rs.push(f)
-        rs.pop_ready(f.timestamp_s)
-    frames_per_s = len(frames) / (time.perf_counter() - t0)
-    assert frames_per_s > 16_000, frames_per_s       # typically ~60k/s; 8000/s is the bus
 
 
 def test_estimator_worker_imports_leave_out_the_filter_design():
