@@ -23,7 +23,7 @@ from gateway.estimator import steady as st
 from gateway.estimator.batch_expm import DiscreteBatch
 from gateway.estimator.kalman import from_lanes, kf_step, n_chunks, to_lanes
 from gateway.estimator.lanecode import LANES
-from gateway.estimator.rbpf import RBPF, RBPFConfig
+from gateway.estimator.rbpf import RBPF, RBPFConfig, block_prefix
 from gateway.model.coordinates import NZ, FilterCoords
 from gateway.model.vehicle import (
     AR_PAPER_DEFAULT,
@@ -466,6 +466,42 @@ def test_fast_mode_recovers_the_truth_like_the_exact_mode() -> None:
         gaps.append(np.abs(fast - exact) / np.array(out["exact"].std))
         seen.append((seed, np.round(gaps[-1], 2)))
     assert (np.median(gaps, axis=0) < 0.5).all(), seen
+
+
+@pytest.mark.parametrize(("case", "taken"), [
+    ("clean", 6), ("lost frame", 2), ("speed step", 3), ("left-out sensor has a value", 1),
+    ("bad shape", 4), ("hold after data", 2), ("hold at the start", 0)])
+def test_a_block_takes_the_samples_up_to_the_first_event(case: str, taken: int) -> None:
+    """block_prefix: the leading samples one compiled call may take, each with its
+    values (left-out sensors zeroed) and whether it updates with every sensor; it stops
+    at the first sample the per-sample path must see."""
+    rng = np.random.default_rng(0)
+    left_out = np.array([False, False, True])
+    S = [Sample(k / FS_HZ, np.where(left_out, np.nan, rng.normal(size=3)), V_MPS)
+         for k in range(6)]
+    y = S[2].values.copy()
+    if case == "lost frame":
+        S[2] = Sample(S[2].t_s, np.where(np.arange(3) == 0, np.nan, y), V_MPS)
+    elif case == "speed step":
+        S[3] = Sample(S[3].t_s, S[3].values, V_MPS * 1.2)
+    elif case == "left-out sensor has a value":
+        S[1] = Sample(S[1].t_s, np.ones(3), V_MPS)
+    elif case == "bad shape":
+        S[4] = Sample(S[4].t_s, np.ones(4), V_MPS)
+    elif case == "hold after data":
+        S[2:] = [Sample(s.t_s, s.values, V_MPS, False) for s in S[2:]]
+    elif case == "hold at the start":
+        S = [Sample(s.t_s, s.values, V_MPS, False) for s in S]
+    Y, full = block_prefix(S, 3, V_MPS, 0.05 * V_MPS, left_out, steady=True,
+                           data_last=True)
+    assert Y.shape == (taken, 3) and full.shape == (taken,)
+    assert full.all()
+    assert (Y[:, 2] == 0.0).all()
+    assert (Y[:, :2] == np.array([s.values[:2] for s in S[:taken]]).reshape(-1, 2)).all()
+    held = [Sample(s.t_s, s.values, V_MPS, False) for s in S[:3]]
+    Y, full = block_prefix(held, 3, V_MPS, 0.05 * V_MPS, left_out, steady=False,
+                           data_last=False)     # warming up, a hold that had begun
+    assert len(full) == 3 and not full.any() and (Y == 0.0).all()
 
 
 @pytest.mark.parametrize(("mode", "n_sensors", "start_ramp_s"),
